@@ -1,0 +1,1 @@
+"""The simulated fleet: PyBullet warehouse, drive units and their LiDARs."""
