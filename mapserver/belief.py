@@ -1,0 +1,260 @@
+"""The belief grid: per-cell log-odds and last-observed stamps, fused from scans.
+
+Per cell the grid holds ``L`` (float32 log-odds, as of ``last_observed``) and
+``last_observed`` (float64 stamp [s], NaN = never observed). Under the ``decay`` policy
+the stored ``L`` is the value at ``last_observed``; reads at a later stamp fade it
+lazily (``SensorModel``/``DecayParams`` document the formulas), so no timer ever sweeps
+the grid. Time is always an argument (a scan's stamp), never the wall clock.
+
+Three states (``CellState``): a cell is OCCUPIED when its (faded) probability is above
+``occupied_threshold``, FREE when below ``free_threshold``, and UNKNOWN otherwise, which
+includes never observed and faded back to the prior.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from mapserver import fusion_kernel as kernel
+from mapserver.geometry import GridGeometry
+from mapserver.scan import Scan
+from mapserver.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
+
+
+class CellState(IntEnum):
+    """The three states of a cell (uint8 in state arrays)."""
+
+    UNKNOWN = 0
+    FREE = 1
+    OCCUPIED = 2
+
+
+@dataclass(frozen=True)
+class CellBox:
+    """An inclusive rectangle of cells: columns col0..col1, rows row0..row1."""
+
+    col0: int
+    row0: int
+    col1: int
+    row1: int
+
+    @property
+    def empty(self) -> bool:
+        return self.col1 < self.col0 or self.row1 < self.row0
+
+    @property
+    def width(self) -> int:
+        return 0 if self.empty else self.col1 - self.col0 + 1
+
+    @property
+    def height(self) -> int:
+        return 0 if self.empty else self.row1 - self.row0 + 1
+
+    @property
+    def slices(self) -> tuple[slice, slice]:
+        """(rows, cols) slices selecting this box from a (height, width) grid array."""
+        return (slice(self.row0, self.row1 + 1), slice(self.col0, self.col1 + 1))
+
+    def union(self, other: CellBox) -> CellBox:
+        if self.empty:
+            return other
+        if other.empty:
+            return self
+        return CellBox(
+            min(self.col0, other.col0),
+            min(self.row0, other.row0),
+            max(self.col1, other.col1),
+            max(self.row1, other.row1),
+        )
+
+
+EMPTY_BOX = CellBox(0, 0, -1, -1)
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """What one scan changed: ``cells`` updated (each counted once) inside ``box``."""
+
+    cells: int
+    box: CellBox
+
+
+class BeliefGrid:
+    """A log-odds occupancy grid with per-cell freshness, fused one scan at a time.
+
+    geometry: the grid's size and placement.
+    sensor_model: the inverse sensor model and thresholds.
+    policy: ``decay`` (default), ``binary`` or ``sticky`` (see ``Policy``).
+    decay: half lives and fade bound (used by the ``decay`` policy only).
+    max_clearing_range: [m] cap on how far a no-return beam clears (default: the scan's
+        own range_max, as REP 117 implies).
+    """
+
+    def __init__(
+        self,
+        geometry: GridGeometry,
+        sensor_model: SensorModel | None = None,
+        policy: Policy | str = Policy.DECAY,
+        decay: DecayParams | None = None,
+        max_clearing_range: float = math.inf,
+    ) -> None:
+        if not max_clearing_range > 0:
+            raise ValueError(f"max_clearing_range must be positive, got {max_clearing_range!r}")
+        self.geometry = geometry
+        self.sensor_model = sensor_model or SensorModel()
+        self.policy = Policy.parse(policy)
+        self.decay = decay or DecayParams()
+        self.max_clearing_range = float(max_clearing_range)
+        self._log_odds = np.full(geometry.size, self.sensor_model.l0, dtype=np.float32)
+        self._last_observed = np.full(geometry.size, np.nan, dtype=np.float64)
+        self._marks = np.zeros(geometry.size, dtype=np.uint8)
+        self._touched = np.empty(geometry.size, dtype=np.int64)
+        self._box = np.empty(4, dtype=np.int64)
+        self._fade_cache = np.empty((kernel.FADE_CACHE_SIZE, 3), dtype=np.float64)
+        self.stamp = -math.inf  # the latest stamp fused: the map's "now"
+        self.scans_fused = 0
+
+    # ----------------------------------------------------------------- fusion
+    def fuse(self, scan: Scan) -> FusionResult:
+        """Fuse one scan: each observed cell updated once; returns the cells and bbox."""
+        g, m = self.geometry, self.sensor_model
+        std = scan.pose_std
+        var_xy = std.xy**2 if std is not None else 0.0
+        var_yaw = std.yaw**2 if std is not None else 0.0
+        n = kernel.mark_scan(
+            self._marks,
+            self._touched,
+            g.width,
+            g.height,
+            g.origin_x,
+            g.origin_y,
+            g.resolution,
+            scan.pose.x,
+            scan.pose.y,
+            scan.pose.yaw,
+            scan.angle_min,
+            scan.angle_increment,
+            scan.ranges,
+            scan.range_min,
+            scan.range_max,
+            min(scan.range_max, self.max_clearing_range),
+            self._box,
+        )
+        kernel.apply_marks(
+            self._log_odds,
+            self._last_observed,
+            self._marks,
+            self._touched,
+            n,
+            g.width,
+            g.origin_x,
+            g.origin_y,
+            g.resolution,
+            scan.pose.x,
+            scan.pose.y,
+            scan.stamp,
+            var_xy,
+            var_yaw,
+            m.l_hit,
+            m.l_miss,
+            m.l0,
+            m.clamp_min,
+            m.clamp_max,
+            POLICY_CODES[self.policy],
+            self.decay.half_life_occupied,
+            self.decay.half_life_free,
+            self._fade_cache,
+        )
+        self.stamp = max(self.stamp, scan.stamp)
+        self.scans_fused += 1
+        return FusionResult(cells=int(n), box=CellBox(*(int(v) for v in self._box)))
+
+    # ------------------------------------------------------------------ reads
+    @property
+    def full_box(self) -> CellBox:
+        return CellBox(0, 0, self.geometry.width - 1, self.geometry.height - 1)
+
+    @property
+    def fades(self) -> bool:
+        """True when evidence fades with time (the ``decay`` policy)."""
+        return self.policy is Policy.DECAY
+
+    def raw_log_odds(self) -> np.ndarray:
+        """Stored log-odds, (height, width) float32 view, as of each cell's last_observed."""
+        return self._log_odds.reshape(self.geometry.shape)
+
+    def last_observed(self) -> np.ndarray:
+        """(height, width) float64 view of last-observed stamps [s]; NaN = never."""
+        return self._last_observed.reshape(self.geometry.shape)
+
+    def log_odds_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
+        """Log-odds (float32) at ``stamp`` [s] (default: the map's stamp), faded per policy.
+
+        Returns a new (rows, cols) array for ``box`` (default: the whole grid).
+        """
+        box = box or self.full_box
+        raw = self.raw_log_odds()[box.slices]
+        if not self.fades or not self._has_stamp(stamp):
+            return raw.copy()
+        t = self.last_observed()[box.slices]
+        out = np.empty(raw.size, dtype=np.float32)
+        kernel.faded_log_odds(
+            np.ascontiguousarray(raw).ravel(),
+            np.ascontiguousarray(t).ravel(),
+            self._resolve_stamp(stamp),
+            self.sensor_model.l0,
+            self.decay.half_life_occupied,
+            self.decay.half_life_free,
+            self._fade_cache,
+            out,
+        )
+        return out.reshape(raw.shape)
+
+    def known_mask(self, log_odds: np.ndarray, box: CellBox | None = None) -> np.ndarray:
+        """Cells observed and not faded back to the prior, for log-odds read from ``box``."""
+        box = box or self.full_box
+        observed = ~np.isnan(self.last_observed()[box.slices])
+        if not self.fades:
+            return observed
+        return observed & (np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound)
+
+    def probability_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
+        """Occupancy probability (float32) at ``stamp``; NaN where unknown (never/faded)."""
+        lo = self.log_odds_at(stamp, box)
+        p = (1.0 / (1.0 + np.exp(-lo.astype(np.float64)))).astype(np.float32)
+        p[~self.known_mask(lo, box)] = np.nan
+        return p
+
+    def states_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
+        """CellState per cell (uint8) at ``stamp`` [s] for ``box`` (default: whole grid)."""
+        lo = self.log_odds_at(stamp, box)
+        return self.states_from_log_odds(lo, self.known_mask(lo, box))
+
+    def states_from_log_odds(self, log_odds: np.ndarray, known: np.ndarray) -> np.ndarray:
+        """Classify log-odds by the thresholds; cells not ``known`` are UNKNOWN."""
+        m = self.sensor_model
+        states = np.full(log_odds.shape, CellState.UNKNOWN, dtype=np.uint8)
+        states[known & (log_odds > m.l_occupied)] = CellState.OCCUPIED
+        states[known & (log_odds < m.l_free)] = CellState.FREE
+        return states
+
+    # ------------------------------------------------------------- snapshots
+    def load_state(self, log_odds: np.ndarray, last_observed: np.ndarray, stamp: float) -> None:
+        """Replace the grid's contents (from a snapshot); arrays of shape (height, width)."""
+        shape = self.geometry.shape
+        for name, arr in (("log_odds", log_odds), ("last_observed", last_observed)):
+            if np.shape(arr) != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {np.shape(arr)}")
+        self._log_odds[:] = np.asarray(log_odds, dtype=np.float32).ravel()
+        self._last_observed[:] = np.asarray(last_observed, dtype=np.float64).ravel()
+        self.stamp = float(stamp)
+
+    def _has_stamp(self, stamp: float | None) -> bool:
+        return stamp is not None or math.isfinite(self.stamp)
+
+    def _resolve_stamp(self, stamp: float | None) -> float:
+        return float(self.stamp if stamp is None else stamp)

@@ -1,0 +1,335 @@
+"""The fusion kernel: one scan into the log-odds grid (numba, no Python per beam).
+
+The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et al.,
+2013): first compute the set of cells the scan observes, then apply one update to each.
+
+1. *Mark endpoints.* Every return whose endpoint lies on the map marks its cell HIT.
+2. *Trace beams.* Every return and no-return beam is clipped to the map rectangle
+   (Liang-Barsky) and traversed cell by cell with integer Bresenham stepping (as Nav2's
+   ``raytraceLine``). A return's own endpoint cell is not traversed; a no-return beam's
+   last cell is. Each traversed cell not yet marked in this scan is marked FREE, so a
+   cell crossed by many beams is recorded once and a HIT is never downgraded.
+3. *Apply.* Each marked cell receives exactly one update (see ``apply_marks``) and its
+   mark is reset, so the mark array is all zero between scans without a full clear.
+
+Work is proportional to beam lengths (trace) plus touched cells (apply); nothing is
+allocated per scan: ``marks`` (uint8, one per cell) and ``touched`` (int64, capacity one
+per cell) are owned by the caller and reused.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+MARK_NONE = 0
+MARK_FREE = 1
+MARK_HIT = 2
+
+POLICY_DECAY = 0
+POLICY_BINARY = 1
+POLICY_STICKY = 2
+
+
+@njit(cache=True, nogil=True)
+def _clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax):
+    """Liang-Barsky clip of segment (x0,y0)-(x1,y1) to the box; returns (ok, t0, t1)."""
+    t0 = 0.0
+    t1 = 1.0
+    dx = x1 - x0
+    dy = y1 - y0
+    for k in range(4):
+        if k == 0:
+            p, q = -dx, x0 - xmin
+        elif k == 1:
+            p, q = dx, xmax - x0
+        elif k == 2:
+            p, q = -dy, y0 - ymin
+        else:
+            p, q = dy, ymax - y0
+        if p == 0.0:
+            if q < 0.0:
+                return False, t0, t1
+        else:
+            r = q / p
+            if p < 0.0:
+                if r > t1:
+                    return False, t0, t1
+                if r > t0:
+                    t0 = r
+            else:
+                if r < t0:
+                    return False, t0, t1
+                if r < t1:
+                    t1 = r
+    return True, t0, t1
+
+
+@njit(cache=True, nogil=True)
+def _cell_of(v, origin, inv_res, n):
+    """Cell index along one axis of coordinate v [m], clamped into [0, n - 1]."""
+    c = int(math.floor((v - origin) * inv_res))
+    if c < 0:
+        return 0
+    if c >= n:
+        return n - 1
+    return c
+
+
+@njit(cache=True, nogil=True)
+def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last):
+    """Bresenham from cell (c0, r0) to (c1, r1); mark unmarked cells FREE; returns new n."""
+    dc = c1 - c0
+    dr = r1 - r0
+    adc = abs(dc)
+    adr = abs(dr)
+    step_c = 1 if dc > 0 else -1
+    step_r = width if dr > 0 else -width
+    if adc >= adr:
+        major, minor, a, b = step_c, step_r, adc, adr
+    else:
+        major, minor, a, b = step_r, step_c, adr, adc
+    count = a + 1 if include_last else a
+    idx = r0 * width + c0
+    err = a >> 1
+    for _ in range(count):
+        if marks[idx] == MARK_NONE:
+            marks[idx] = MARK_FREE
+            touched[n] = idx
+            n += 1
+        err -= b
+        if err < 0:
+            idx += minor
+            err += a
+        idx += major
+    return n
+
+
+@njit(cache=True, nogil=True)
+def mark_scan(
+    marks,
+    touched,
+    width,
+    height,
+    origin_x,
+    origin_y,
+    resolution,
+    sensor_x,
+    sensor_y,
+    sensor_yaw,
+    angle_min,
+    angle_increment,
+    ranges,
+    range_min,
+    range_max,
+    clearing_range,
+    box,
+):
+    """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
+
+    ranges: [m] per beam, REP 117 semantics; clearing_range: [m] how far a no-return
+    beam clears. touched[:n] receives the flat indices of the marked cells; box (int64[4])
+    receives their bounding box (col_min, row_min, col_max, row_max), inclusive, or
+    (0, 0, -1, -1) when no cell is touched.
+    """
+    cmin = width
+    rmin = height
+    cmax = -1
+    rmax = -1
+    inv_res = 1.0 / resolution
+    xmin = origin_x
+    ymin = origin_y
+    xmax = origin_x + width * resolution
+    ymax = origin_y + height * resolution
+    nbeams = ranges.shape[0]
+    n = 0
+    # Step 1: endpoints of returns that land on the map.
+    for i in range(nbeams):
+        r = ranges[i]
+        if not (r >= range_min and r <= range_max):
+            continue
+        a = sensor_yaw + angle_min + i * angle_increment
+        ex = sensor_x + r * math.cos(a)
+        ey = sensor_y + r * math.sin(a)
+        if ex < xmin or ey < ymin or ex >= xmax or ey >= ymax:
+            continue
+        c = int(math.floor((ex - origin_x) * inv_res))
+        rr = int(math.floor((ey - origin_y) * inv_res))
+        if c >= width or rr >= height:
+            continue
+        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c, rr)
+        idx = rr * width + c
+        if marks[idx] != MARK_HIT:
+            if marks[idx] == MARK_NONE:
+                touched[n] = idx
+                n += 1
+            marks[idx] = MARK_HIT
+    # Step 2: free cells along each beam, clipped to the map.
+    for i in range(nbeams):
+        r = ranges[i]
+        if r >= range_min and r <= range_max:
+            length = r
+            is_return = True
+        elif r > range_max:
+            length = clearing_range
+            is_return = False
+        else:
+            continue  # invalid: NaN, negative, below range_min
+        a = sensor_yaw + angle_min + i * angle_increment
+        ex = sensor_x + length * math.cos(a)
+        ey = sensor_y + length * math.sin(a)
+        ok, t0, t1 = _clip_segment(sensor_x, sensor_y, ex, ey, xmin, ymin, xmax, ymax)
+        if not ok:
+            continue
+        dx = ex - sensor_x
+        dy = ey - sensor_y
+        c0 = _cell_of(sensor_x + t0 * dx, origin_x, inv_res, width)
+        r0 = _cell_of(sensor_y + t0 * dy, origin_y, inv_res, height)
+        c1 = _cell_of(sensor_x + t1 * dx, origin_x, inv_res, width)
+        r1 = _cell_of(sensor_y + t1 * dy, origin_y, inv_res, height)
+        # A return whose endpoint is on the map stops before its own (HIT) cell.
+        endpoint_on_map = is_return and t1 >= 1.0
+        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map)
+        # Bresenham stays inside the box of its two end cells (a HIT end is in already).
+        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
+        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
+    if n == 0:
+        cmin, rmin, cmax, rmax = 0, 0, -1, -1
+    box[0] = cmin
+    box[1] = rmin
+    box[2] = cmax
+    box[3] = rmax
+    return n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _grow(cmin, rmin, cmax, rmax, c, r):
+    """The box (cmin, rmin, cmax, rmax) grown to hold cell (c, r)."""
+    return min(cmin, c), min(rmin, r), max(cmax, c), max(rmax, r)
+
+
+@njit(cache=True, nogil=True)
+def apply_marks(
+    log_odds,
+    last_observed,
+    marks,
+    touched,
+    n,
+    width,
+    origin_x,
+    origin_y,
+    resolution,
+    sensor_x,
+    sensor_y,
+    stamp,
+    pose_var_xy,
+    pose_var_yaw,
+    l_hit,
+    l_miss,
+    l0,
+    clamp_min,
+    clamp_max,
+    policy,
+    half_life_occupied,
+    half_life_free,
+    fade_cache,
+):
+    """Step 3: one update per marked cell in touched[:n]; resets their marks.
+
+    Update of cell c with evidence l (l_hit for HIT, l_miss for FREE):
+    - decay: fade L toward l0 over max(0, stamp - last_observed) [s] with the half life
+      of its sign, then ``L <- clamp(L + w * (l - l0))``;
+    - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
+    - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE (last ray wins).
+    The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
+    cell centre's distance from the sensor: the share of a Gaussian-blurred update that
+    stays in the cell (w = 1 exactly when both variances are 0).
+    ``last_observed <- max(last_observed, stamp)``.
+    fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``_fade``), owned by the caller.
+    """
+    res2 = resolution * resolution
+    weighted = pose_var_xy > 0.0 or pose_var_yaw > 0.0
+    # Cells last observed by the same earlier scan share their stamp: cache fade factors.
+    fade_cache[:, 0] = math.nan
+    stamp_bits = last_observed.view(np.int64)
+    for k in range(n):
+        idx = touched[k]
+        mark = marks[idx]
+        marks[idx] = MARK_NONE
+        if policy == POLICY_BINARY:
+            log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
+        else:
+            ev = (l_hit if mark == MARK_HIT else l_miss) - l0
+            if weighted:
+                row = idx // width
+                dxc = origin_x + (idx - row * width + 0.5) * resolution - sensor_x
+                dyc = origin_y + (row + 0.5) * resolution - sensor_y
+                ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
+            value = log_odds[idx]
+            if policy == POLICY_DECAY:
+                t = last_observed[idx]
+                if t < stamp:  # False for NaN (never observed): nothing to fade
+                    value = _fade(
+                        value,
+                        l0,
+                        t,
+                        stamp,
+                        stamp_bits[idx],
+                        fade_cache,
+                        half_life_occupied,
+                        half_life_free,
+                    )
+                value += ev
+                if value < clamp_min:
+                    value = clamp_min
+                elif value > clamp_max:
+                    value = clamp_max
+            else:
+                value += ev
+            log_odds[idx] = value
+        if not (last_observed[idx] >= stamp):
+            last_observed[idx] = stamp
+
+
+FADE_CACHE_SIZE = 1024
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fade(value, l0, t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free):
+    """``value`` last observed at ``t`` [s], faded toward ``l0`` up to ``stamp`` [s].
+
+    ``2 ** x`` costs more than the rest of an update, and the cells one scan touches were
+    last observed by few distinct earlier scans, so the factors for each ``t`` are kept in
+    a direct-mapped cache keyed by t's bits: rows of (t, fade_occupied, fade_free). The
+    caller resets column 0 to NaN whenever ``stamp`` changes.
+    """
+    h = (t_bits ^ (t_bits >> 21) ^ (t_bits >> 42)) & (FADE_CACHE_SIZE - 1)
+    if fade_cache[h, 0] != t:
+        fade_cache[h, 0] = t
+        fade_cache[h, 1] = 2.0 ** (-(stamp - t) / half_life_occupied)
+        fade_cache[h, 2] = 2.0 ** (-(stamp - t) / half_life_free)
+    dev = value - l0
+    return l0 + dev * (fade_cache[h, 1] if dev > 0.0 else fade_cache[h, 2])
+
+
+@njit(cache=True, nogil=True)
+def faded_log_odds(
+    log_odds, last_observed, stamp, l0, half_life_occupied, half_life_free, fade_cache, out
+):
+    """Decay view: ``out = l0 + (L - l0) * 2 ** (-max(0, stamp - t) / half_life)`` per cell.
+
+    Works on flat arrays of any window; never-observed cells (t NaN) are copied as is.
+    """
+    fade_cache[:, 0] = math.nan
+    stamp_bits = last_observed.view(np.int64)
+    for i in range(log_odds.shape[0]):
+        value = log_odds[i]
+        t = last_observed[i]
+        if t < stamp:
+            value = _fade(
+                value, l0, t, stamp, stamp_bits[i], fade_cache, half_life_occupied, half_life_free
+            )
+        out[i] = value
+    return out

@@ -1,0 +1,120 @@
+"""Grid geometry: size, resolution and origin, and conversions between world and cells.
+
+Conventions (CONTRACT.md): one fixed ``map`` frame, x right, y up, metres. Grids are
+row-major and row 0 is the row at the origin's y (the bottom row, as in ROS
+``nav_msgs/OccupancyGrid``): ``index = row * width + col``. The origin is the world
+position of the outer corner of cell (0, 0); the map is axis-aligned (origin yaw 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class OutsideMapError(ValueError):
+    """A world point lies outside the grid; carries the point for the error message."""
+
+    def __init__(self, x: float, y: float, geometry: GridGeometry) -> None:
+        self.x, self.y = x, y
+        xmin, ymin, xmax, ymax = geometry.bounds
+        super().__init__(f"point ({x}, {y}) is outside the map [{xmin}, {xmax}) x [{ymin}, {ymax})")
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """The shape and placement of a grid.
+
+    width, height: [cells], both >= 1.
+    resolution: [m/cell], > 0.
+    origin_x, origin_y: [m] world position of the outer corner of cell (0, 0).
+    """
+
+    width: int
+    height: int
+    resolution: float
+    origin_x: float = 0.0
+    origin_y: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"{name} must be a positive number of cells, got {value!r}")
+        if not (math.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f"resolution must be positive metres, got {self.resolution!r}")
+        for name in ("origin_x", "origin_y"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) = (height, width), the numpy shape of a grid array."""
+        return (self.height, self.width)
+
+    @property
+    def size(self) -> int:
+        """Number of cells."""
+        return self.width * self.height
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) [m]; points on the max edges are outside."""
+        return (
+            self.origin_x,
+            self.origin_y,
+            self.origin_x + self.width * self.resolution,
+            self.origin_y + self.height * self.resolution,
+        )
+
+    def world_to_cell(self, x: float, y: float) -> tuple[int, int]:
+        """(col, row) of the cell holding world point (x, y) [m]; may lie outside the grid."""
+        return (
+            math.floor((x - self.origin_x) / self.resolution),
+            math.floor((y - self.origin_y) / self.resolution),
+        )
+
+    def contains_cell(self, col: int, row: int) -> bool:
+        """True when (col, row) is a cell of this grid."""
+        return 0 <= col < self.width and 0 <= row < self.height
+
+    def contains_point(self, x: float, y: float) -> bool:
+        """True when world point (x, y) [m] lies on the grid (NaN is never on it)."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return False
+        return self.contains_cell(*self.world_to_cell(x, y))
+
+    def world_to_cell_checked(self, x: float, y: float) -> tuple[int, int]:
+        """(col, row) of world point (x, y) [m]; raises OutsideMapError off the grid."""
+        if not self.contains_point(x, y):
+            raise OutsideMapError(x, y, self)
+        return self.world_to_cell(x, y)
+
+    def cell_to_world(self, col: int, row: int) -> tuple[float, float]:
+        """World position [m] of the centre of cell (col, row)."""
+        return (
+            self.origin_x + (col + 0.5) * self.resolution,
+            self.origin_y + (row + 0.5) * self.resolution,
+        )
+
+    def points_to_cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vectorised world -> cell for an (n, 2) array of points [m].
+
+        Returns (cols, rows, inside): int64 cell coordinates and a boolean mask of the
+        points that lie on the grid (non-finite points are outside; their cells are -1).
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        finite = np.isfinite(pts).all(axis=1)
+        safe = np.where(finite[:, None], pts, 0.0)
+        cols = np.floor((safe[:, 0] - self.origin_x) / self.resolution).astype(np.int64)
+        rows = np.floor((safe[:, 1] - self.origin_y) / self.resolution).astype(np.int64)
+        inside = finite & (cols >= 0) & (cols < self.width) & (rows >= 0) & (rows < self.height)
+        cols[~finite] = -1
+        rows[~finite] = -1
+        return cols, rows, inside
+
+    def index(self, col: int, row: int) -> int:
+        """Flat row-major index of cell (col, row)."""
+        return row * self.width + col

@@ -1,0 +1,210 @@
+"""One LiDAR scan (CONTRACT section 2.1) and its validation.
+
+Range semantics follow ROS REP 117:
+
+- a finite value in ``[range_min, range_max]`` is a *return*: free cells along the beam
+  and an occupied endpoint;
+- a value ``> range_max`` (including ``+Infinity``) is *no return*: free cells out to the
+  clearing range, no endpoint;
+- ``null``, NaN, negative values, ``-Infinity`` and values ``< range_min`` are *invalid*
+  and dropped: they change nothing.
+
+``Scan.from_dict`` is the one validator for scans from any source (a JSONL file, an HTTP
+body); every error names the field and the offending value.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+MAP_FRAME = "map"
+DEFAULT_MAX_BEAMS = 16384
+
+# Beam classes, as returned by ``classify_ranges``.
+BEAM_INVALID = 0
+BEAM_RETURN = 1
+BEAM_NO_RETURN = 2
+
+
+class ScanError(ValueError):
+    """A scan field is missing or invalid; ``field`` is its dotted path, ``value`` the value."""
+
+    def __init__(self, field: str, value: Any, reason: str) -> None:
+        self.field = field
+        self.value = value
+        self.reason = reason
+        super().__init__(f"{field}: {reason}, got {_short_repr(value)}")
+
+
+def _short_repr(value: Any, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """Sensor pose in the map frame: x, y [m], yaw [rad] counter-clockwise from +x."""
+
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class PoseStd:
+    """Localisation uncertainty: xy [m] position std, yaw [rad] heading std (both >= 0)."""
+
+    xy: float = 0.0
+    yaw: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """A planar LiDAR scan taken at ``pose`` at time ``stamp`` [s].
+
+    Beam i points at ``pose.yaw + angle_min + i * angle_increment`` [rad] and measured
+    ``ranges[i]`` [m] (float64; NaN where the input was null).
+    """
+
+    unit_id: str
+    stamp: float
+    pose: Pose2D
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: np.ndarray
+    pose_std: PoseStd | None = None
+    frame: str = MAP_FRAME
+
+    @property
+    def beam_count(self) -> int:
+        return int(self.ranges.shape[0])
+
+    def beam_classes(self) -> np.ndarray:
+        """Per-beam class (BEAM_RETURN, BEAM_NO_RETURN or BEAM_INVALID) by REP 117."""
+        return classify_ranges(self.ranges, self.range_min, self.range_max)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The CONTRACT 2.1 JSON object (NaN ranges as null, no-return as Infinity)."""
+        out: dict[str, Any] = {
+            "unit_id": self.unit_id,
+            "stamp": self.stamp,
+            "frame": self.frame,
+            "pose": {"x": self.pose.x, "y": self.pose.y, "yaw": self.pose.yaw},
+            "angle_min": self.angle_min,
+            "angle_increment": self.angle_increment,
+            "range_min": self.range_min,
+            "range_max": self.range_max,
+            "ranges": [None if math.isnan(r) else float(r) for r in self.ranges.tolist()],
+        }
+        if self.pose_std is not None:
+            out["pose_std"] = {"xy": self.pose_std.xy, "yaw": self.pose_std.yaw}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, max_beams: int = DEFAULT_MAX_BEAMS) -> Scan:
+        """Validate a CONTRACT 2.1 scan object; raises ScanError naming the bad field."""
+        if not isinstance(data, Mapping):
+            raise ScanError("scan", data, "must be a JSON object")
+        unit_id = data.get("unit_id")
+        if not isinstance(unit_id, str) or not unit_id.strip():
+            raise ScanError("unit_id", unit_id, "must be a non-empty string")
+        frame = data.get("frame", MAP_FRAME)
+        if frame != MAP_FRAME:
+            raise ScanError("frame", frame, f"must be {MAP_FRAME!r}, the only frame")
+        stamp = _finite(data, "stamp")
+        pose_data = _object(data, "pose")
+        pose = Pose2D(
+            x=_finite(pose_data, "x", "pose."),
+            y=_finite(pose_data, "y", "pose."),
+            yaw=_finite(pose_data, "yaw", "pose."),
+        )
+        pose_std = None
+        if data.get("pose_std") is not None:
+            std_data = _object(data, "pose_std")
+            pose_std = PoseStd(
+                xy=_finite(std_data, "xy", "pose_std.", minimum=0.0, default=0.0),
+                yaw=_finite(std_data, "yaw", "pose_std.", minimum=0.0, default=0.0),
+            )
+        angle_min = _finite(data, "angle_min")
+        angle_increment = _finite(data, "angle_increment")
+        if not angle_increment > 0:
+            raise ScanError("angle_increment", angle_increment, "must be positive")
+        range_min = _finite(data, "range_min", minimum=0.0)
+        range_max = _finite(data, "range_max")
+        if not range_max > range_min:
+            raise ScanError("range_max", range_max, f"must be greater than range_min ({range_min})")
+        ranges = _ranges(data.get("ranges"), max_beams)
+        return cls(
+            unit_id=unit_id,
+            stamp=stamp,
+            pose=pose,
+            angle_min=angle_min,
+            angle_increment=angle_increment,
+            range_min=range_min,
+            range_max=range_max,
+            ranges=ranges,
+            pose_std=pose_std,
+            frame=frame,
+        )
+
+
+def classify_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """REP 117 class of each range [m]: BEAM_RETURN, BEAM_NO_RETURN or BEAM_INVALID (uint8)."""
+    r = np.asarray(ranges, dtype=np.float64)
+    classes = np.full(r.shape, BEAM_INVALID, dtype=np.uint8)
+    with np.errstate(invalid="ignore"):
+        classes[(r >= range_min) & (r <= range_max)] = BEAM_RETURN
+        classes[r > range_max] = BEAM_NO_RETURN
+    return classes
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _object(data: Mapping, name: str) -> Mapping:
+    value = data.get(name)
+    if not isinstance(value, Mapping):
+        raise ScanError(name, value, "must be a JSON object")
+    return value
+
+
+def _finite(
+    data: Mapping,
+    name: str,
+    prefix: str = "",
+    minimum: float | None = None,
+    default: float | None = None,
+) -> float:
+    value = data.get(name, default)
+    if not _is_number(value) or not math.isfinite(value):
+        raise ScanError(prefix + name, value, "must be a finite number")
+    if minimum is not None and value < minimum:
+        raise ScanError(prefix + name, value, f"must be >= {minimum}")
+    return float(value)
+
+
+def _ranges(value: Any, max_beams: int) -> np.ndarray:
+    if not isinstance(value, list | tuple | np.ndarray):
+        raise ScanError("ranges", value, "must be a list of numbers or nulls")
+    if len(value) == 0:
+        raise ScanError("ranges", value, "must hold at least one beam")
+    if len(value) > max_beams:
+        raise ScanError("ranges", f"<{len(value)} beams>", f"must hold at most {max_beams} beams")
+    if isinstance(value, np.ndarray):
+        return value.astype(np.float64, copy=True)
+    if not set(map(type, value)) <= _RANGE_TYPES:
+        for i, r in enumerate(value):
+            if type(r) not in _RANGE_TYPES:
+                raise ScanError(f"ranges[{i}]", r, "must be a number or null")
+    return np.array(value, dtype=np.float64)  # None becomes NaN: invalid, dropped
+
+
+_RANGE_TYPES = {float, int, type(None)}

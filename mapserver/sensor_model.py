@@ -1,0 +1,168 @@
+"""The inverse sensor model, the map policies and their parameters.
+
+Log-odds ``L = log(p / (1 - p))``. A scan adds, to each cell it observes, once:
+``L <- L + l(z) - L0`` where ``l(z)`` is ``l_hit = logit(p_hit)`` for the cell holding a
+return and ``l_miss = logit(p_miss)`` for a cell a beam passes through, and
+``L0 = logit(prior)`` is the prior, subtracted once per update so it never accumulates.
+Then ``L`` is clamped to ``[clamp_min, clamp_max]`` so that a wrong cell can recover
+(Thrun, Burgard, Fox, *Probabilistic Robotics*, 2005, table 9.1; Hornung et al.,
+*OctoMap*, Autonomous Robots 2013, eq. 2-4 for the clamping).
+
+Defaults (CONTRACT section 1), in both units:
+
+- ``p_hit = 0.7``   # = +0.847 log-odds per return
+- ``p_miss = 0.4``  # = -0.405 log-odds per pass-through
+- ``clamp_min = -5.0``  # = p 0.0067: 13 returns to flip a saturated free cell
+- ``clamp_max = +5.0``  # = p 0.9933: 13 passes to flip a saturated occupied cell
+- ``occupied_threshold = 0.65``  # = +0.619 log-odds
+- ``free_threshold = 0.25``      # = -1.099 log-odds
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+
+def logit(p: float) -> float:
+    """Log-odds of probability p (0 < p < 1)."""
+    return math.log(p / (1.0 - p))
+
+
+def sigmoid(log_odds: float) -> float:
+    """Probability of log-odds L."""
+    return 1.0 / (1.0 + math.exp(-log_odds))
+
+
+class Policy(StrEnum):
+    """How evidence accumulates and ages (CONTRACT section 1).
+
+    - ``decay``: clamped log-odds whose evidence fades toward the prior with time since
+      the cell was last observed (the project's default).
+    - ``binary``: the Nav2 obstacle-layer baseline: last ray wins; a return marks the cell
+      occupied (``clamp_max``), a pass clears it (``clamp_min``); no decay.
+    - ``sticky``: log-odds with no clamp and no decay.
+    """
+
+    DECAY = "decay"
+    BINARY = "binary"
+    STICKY = "sticky"
+
+    @classmethod
+    def parse(cls, value: str | Policy) -> Policy:
+        """The policy named ``value``; ValueError naming the choices otherwise."""
+        try:
+            return cls(value)
+        except ValueError:
+            choices = ", ".join(p.value for p in cls)
+            raise ValueError(f"policy must be one of {choices}, got {value!r}") from None
+
+
+# Kernel codes for the policies (numba kernels take integers, not enums).
+POLICY_CODES = {Policy.DECAY: 0, Policy.BINARY: 1, Policy.STICKY: 2}
+
+
+def _probability(name: str, value: float) -> float:
+    if not (isinstance(value, int | float) and 0.0 < value < 1.0):
+        raise ValueError(f"{name} must be a probability strictly between 0 and 1, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Inverse sensor model and state thresholds; validated on construction.
+
+    p_hit: probability that a cell holding a return is occupied (> 0.5).
+    p_miss: probability that a cell a beam passes through is occupied (< 0.5).
+    prior: occupancy probability before any evidence (L0 = logit(prior)).
+    clamp_min, clamp_max: [log-odds] bounds, clamp_min < L0 < clamp_max.
+    occupied_threshold: a cell with p > this is occupied.
+    free_threshold: a cell with p < this is free; between the two it is unknown.
+    """
+
+    p_hit: float = 0.7
+    p_miss: float = 0.4
+    prior: float = 0.5
+    clamp_min: float = -5.0
+    clamp_max: float = 5.0
+    occupied_threshold: float = 0.65
+    free_threshold: float = 0.25
+
+    def __post_init__(self) -> None:
+        for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
+            _probability(name, getattr(self, name))
+        if not self.p_hit > self.prior:
+            raise ValueError(
+                f"p_hit must be greater than the prior ({self.prior}), got {self.p_hit!r}"
+            )
+        if not self.p_miss < self.prior:
+            raise ValueError(
+                f"p_miss must be less than the prior ({self.prior}), got {self.p_miss!r}"
+            )
+        for name in ("clamp_min", "clamp_max"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ValueError(f"{name} must be a finite log-odds value, got {value!r}")
+        if not self.clamp_min < self.l0:
+            raise ValueError(
+                f"clamp_min must be below the prior's log-odds ({self.l0:.3f}), "
+                f"got {self.clamp_min!r}"
+            )
+        if not self.clamp_max > self.l0:
+            raise ValueError(
+                f"clamp_max must be above the prior's log-odds ({self.l0:.3f}), "
+                f"got {self.clamp_max!r}"
+            )
+        if not self.free_threshold < self.occupied_threshold:
+            raise ValueError(
+                "free_threshold must be below occupied_threshold "
+                f"({self.occupied_threshold}), got {self.free_threshold!r}"
+            )
+
+    @property
+    def l_hit(self) -> float:
+        """[log-odds] evidence of one return."""
+        return logit(self.p_hit)
+
+    @property
+    def l_miss(self) -> float:
+        """[log-odds] evidence of one pass-through (negative)."""
+        return logit(self.p_miss)
+
+    @property
+    def l0(self) -> float:
+        """[log-odds] the prior."""
+        return logit(self.prior)
+
+    @property
+    def l_occupied(self) -> float:
+        """[log-odds] a cell is occupied above this."""
+        return logit(self.occupied_threshold)
+
+    @property
+    def l_free(self) -> float:
+        """[log-odds] a cell is free below this."""
+        return logit(self.free_threshold)
+
+
+@dataclass(frozen=True)
+class DecayParams:
+    """Freshness decay of the ``decay`` policy.
+
+    Evidence fades toward the prior with the time since the cell was last observed:
+    ``L(t) = L0 + (L - L0) * 2 ** (-(t - last_observed) / half_life)``, with
+    ``half_life_occupied`` [s] for evidence above the prior and ``half_life_free`` [s]
+    below it. A cell whose faded evidence ``|L(t) - L0|`` is below ``fade_bound``
+    [log-odds] is unknown again, as if never observed.
+    """
+
+    half_life_occupied: float = 30.0
+    half_life_free: float = 120.0
+    fade_bound: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("half_life_occupied", "half_life_free", "fade_bound"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
