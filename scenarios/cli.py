@@ -1,0 +1,27 @@
+"""The ``fleetmap`` command: one entry point, a subcommand per job (CONTRACT section 1)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mapserver.cli_map import add_map_parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fleetmap",
+        description="Shared occupancy maps for robot fleets: fuse, serve, simulate, measure.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_map_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return args.handler(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""``fleetmap map build``: files written, figures printed, bad input refused whole."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+from conftest import make_scan
+
+from mapserver.scanfile import write_scan_file
+from scenarios.cli import main
+
+ARGS = ["--width", "12", "--height", "3", "--resolution", "1.0", "--origin", "0,0"]
+
+
+@pytest.fixture
+def scan_file(tmp_path):
+    path = tmp_path / "scans.jsonl"
+    # From cell (0, 1) along +x: cells 0..4 free, cell 5 occupied (hit 3 times), rest unknown.
+    write_scan_file(path, [make_scan([5.0], y=1.5, stamp=float(i)) for i in range(3)])
+    return path
+
+
+def read_pgm(path):
+    data = path.read_bytes()
+    header = data.split(b"\n", 3)
+    width, height = (int(v) for v in header[1].split())
+    return np.frombuffer(header[3], dtype=np.uint8).reshape(height, width)
+
+
+def test_map_build_writes_ros_map_files_and_prints_figures(scan_file, tmp_path, capsys):
+    out = tmp_path / "map"
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["scans"] == 3 and figures["cells_updated"] == 18
+    assert figures["fusion_s"] > 0
+    meta = yaml.safe_load((out / "map.yaml").read_text())
+    assert meta["image"] == "map.pgm" and meta["resolution"] == 1.0 and meta["mode"] == "trinary"
+    pgm = read_pgm(out / "map.pgm")
+    middle = pgm[1]  # image rows run top-down: the map's row 1 is the middle one either way
+    assert middle[:5].tolist() == [254] * 5  # three passes: free
+    assert middle[5] == 0  # occupied
+    assert middle[6:].tolist() == [205] * 6  # never observed: unknown
+    assert np.all(pgm[[0, 2]] == 205)
+    logodds = np.load(out / "logodds.npy")
+    assert logodds.dtype == np.float32 and logodds.shape == (3, 12)
+    assert logodds[1, 5] > 2.0 and logodds[1, 0] < -1.0 and logodds[0, 0] == 0.0
+
+
+def test_the_policy_flag_selects_the_policy(scan_file, tmp_path):
+    out = tmp_path / "map"
+    assert (
+        main(["map", "build", str(scan_file), *ARGS, "--out", str(out), "--policy", "binary"]) == 0
+    )
+    assert np.load(out / "logodds.npy")[1, 5] == 5.0
+
+
+def test_a_bad_line_names_its_number_and_field_and_writes_nothing(scan_file, tmp_path, capsys):
+    lines = scan_file.read_text().splitlines()
+    bad = json.loads(lines[1])
+    bad["pose"]["x"] = math.nan
+    lines[1] = json.dumps(bad)
+    scan_file.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "map"
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{scan_file}:2: pose.x" in err and "nan" in err
+    assert not out.exists()
+
+
+def test_bad_sensor_model_flags_are_refused_before_any_work(scan_file, tmp_path, capsys):
+    out = tmp_path / "map"
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), "--p-hit", "0.4"]) == 2
+    assert "p_hit must be greater than the prior" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_missing_scan_file_is_a_clear_error(tmp_path, capsys):
+    assert main(["map", "build", str(tmp_path / "nope.jsonl"), *ARGS]) == 2
+    assert "cannot read" in capsys.readouterr().err
+
+
+def test_the_console_command_runs_map_build(scan_file, tmp_path):
+    out = tmp_path / "map"
+    proc = subprocess.run(
+        [sys.executable, "-m", "scenarios.cli", "map", "build", str(scan_file), *ARGS,
+         "--out", str(out), "--json"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert json.loads(proc.stdout.splitlines()[-1])["scans"] == 3
+    assert sorted(p.name for p in out.iterdir()) == ["logodds.npy", "map.pgm", "map.yaml"]
