@@ -59,6 +59,17 @@ class CellBox:
         """(rows, cols) slices selecting this box from a (height, width) grid array."""
         return (slice(self.row0, self.row1 + 1), slice(self.col0, self.col1 + 1))
 
+    def clip(self, shape: tuple[int, int]) -> CellBox:
+        """This box intersected with a (height, width) grid; EMPTY_BOX when disjoint."""
+        height, width = shape
+        clipped = CellBox(
+            max(self.col0, 0),
+            max(self.row0, 0),
+            min(self.col1, width - 1),
+            min(self.row1, height - 1),
+        )
+        return EMPTY_BOX if clipped.empty else clipped
+
     def union(self, other: CellBox) -> CellBox:
         if self.empty:
             return other
@@ -109,6 +120,13 @@ class BeliefGrid:
         self.policy = Policy.parse(policy)
         self.decay = decay or DecayParams()
         self.max_clearing_range = float(max_clearing_range)
+        m = self.sensor_model
+        margin = min(m.l_occupied - m.l0, m.l0 - m.l_free)
+        if self.decay.fade_bound >= margin:
+            raise ValueError(
+                f"decay.fade_bound must be below the thresholds' distance from the prior "
+                f"({margin:.3f} log-odds), got {self.decay.fade_bound!r}"
+            )
         self._log_odds = np.full(geometry.size, self.sensor_model.l0, dtype=np.float32)
         self._last_observed = np.full(geometry.size, np.nan, dtype=np.float64)
         self._marks = np.zeros(geometry.size, dtype=np.uint8)
@@ -214,6 +232,14 @@ class BeliefGrid:
         )
         return out.reshape(raw.shape)
 
+    def age_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
+        """Freshness view: age [s] of each cell's evidence at ``stamp``; NaN = never observed.
+
+        Ages are ``stamp - last_observed``, negative for evidence newer than ``stamp``.
+        """
+        box = box or self.full_box
+        return self._resolve_stamp(stamp) - self.last_observed()[box.slices]
+
     def known_mask(self, log_odds: np.ndarray, box: CellBox | None = None) -> np.ndarray:
         """Cells observed and not faded back to the prior, for log-odds read from ``box``."""
         box = box or self.full_box
@@ -237,9 +263,10 @@ class BeliefGrid:
     def states_from_log_odds(self, log_odds: np.ndarray, known: np.ndarray) -> np.ndarray:
         """Classify log-odds by the thresholds; cells not ``known`` are UNKNOWN."""
         m = self.sensor_model
-        states = np.full(log_odds.shape, CellState.UNKNOWN, dtype=np.uint8)
-        states[known & (log_odds > m.l_occupied)] = CellState.OCCUPIED
-        states[known & (log_odds < m.l_free)] = CellState.FREE
+        lo = np.asarray(log_odds, dtype=np.float64)  # compare as the costmap kernel does
+        states = np.full(lo.shape, CellState.UNKNOWN, dtype=np.uint8)
+        states[known & (lo > m.l_occupied)] = CellState.OCCUPIED
+        states[known & (lo < m.l_free)] = CellState.FREE
         return states
 
     # ------------------------------------------------------------- snapshots

@@ -184,12 +184,8 @@ class Inflator:
         if changed.empty:
             return EMPTY_BOX
         r = self.radius_cells
-        height, width = shape
-        return CellBox(
-            max(changed.col0 - r, 0),
-            max(changed.row0 - r, 0),
-            min(changed.col1 + r, width - 1),
-            min(changed.row1 + r, height - 1),
+        return CellBox(changed.col0 - r, changed.row0 - r, changed.col1 + r, changed.row1 + r).clip(
+            shape
         )
 
     def inflate(self, lethal: np.ndarray) -> np.ndarray:
@@ -213,7 +209,7 @@ class Inflator:
                 f"out_costs must be uint8 of shape {lethal.shape}, "
                 f"got {out_costs.dtype} {out_costs.shape}"
             )
-        target = _clip(box, lethal.shape)
+        target = box.clip(lethal.shape)
         if not target.empty:
             out_costs[target.slices] = self._inflate_box(lethal, target)
 
@@ -228,7 +224,7 @@ class Inflator:
         if master.ndim != 2 or master.dtype != np.uint8:
             raise ValueError(f"master must be a 2-D uint8 array, got {master.dtype} {master.shape}")
         full = CellBox(0, 0, master.shape[1] - 1, master.shape[0] - 1)
-        target = _clip(box or full, master.shape)
+        target = (box or full).clip(master.shape)
         if target.empty:
             return
         window = self.affected_box(target, master.shape)
@@ -277,15 +273,6 @@ def _as_lethal_mask(lethal: np.ndarray) -> np.ndarray:
     if arr.ndim != 2 or arr.dtype != np.bool_:
         raise ValueError(f"lethal must be a 2-D boolean array, got {arr.dtype} {arr.shape}")
     return np.ascontiguousarray(arr)
-
-
-def _clip(box: CellBox, shape: tuple[int, int]) -> CellBox:
-    """``box`` intersected with a (height, width) grid (EMPTY_BOX when disjoint)."""
-    height, width = shape
-    clipped = CellBox(
-        max(box.col0, 0), max(box.row0, 0), min(box.col1, width - 1), min(box.row1, height - 1)
-    )
-    return EMPTY_BOX if clipped.empty else clipped
 
 
 @njit(cache=True, nogil=True)

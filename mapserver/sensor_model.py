@@ -77,8 +77,9 @@ class SensorModel:
     p_miss: probability that a cell a beam passes through is occupied (< 0.5).
     prior: occupancy probability before any evidence (L0 = logit(prior)).
     clamp_min, clamp_max: [log-odds] bounds, clamp_min < L0 < clamp_max.
-    occupied_threshold: a cell with p > this is occupied.
-    free_threshold: a cell with p < this is free; between the two it is unknown.
+    occupied_threshold: a cell with p > this is occupied (> prior).
+    free_threshold: a cell with p < this is free (< prior); between the two it is unknown,
+        so evidence fading toward the prior can only turn a known cell unknown.
     """
 
     p_hit: float = 0.7
@@ -114,10 +115,15 @@ class SensorModel:
                 f"clamp_max must be above the prior's log-odds ({self.l0:.3f}), "
                 f"got {self.clamp_max!r}"
             )
-        if not self.free_threshold < self.occupied_threshold:
+        if not self.free_threshold < self.prior:
             raise ValueError(
-                "free_threshold must be below occupied_threshold "
-                f"({self.occupied_threshold}), got {self.free_threshold!r}"
+                f"free_threshold must be below the prior ({self.prior}) so that a cell at the "
+                f"prior is unknown, got {self.free_threshold!r}"
+            )
+        if not self.occupied_threshold > self.prior:
+            raise ValueError(
+                f"occupied_threshold must be above the prior ({self.prior}) so that a cell at "
+                f"the prior is unknown, got {self.occupied_threshold!r}"
             )
 
     @property

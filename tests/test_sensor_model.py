@@ -29,7 +29,8 @@ def test_logit_and_sigmoid_are_inverse():
         ({"clamp_min": 0.0}, "clamp_min must be below"),
         ({"clamp_max": -1.0}, "clamp_max must be above"),
         ({"clamp_max": math.inf}, "clamp_max must be a finite"),
-        ({"free_threshold": 0.7}, "free_threshold must be below occupied_threshold"),
+        ({"free_threshold": 0.7}, "free_threshold must be below the prior"),
+        ({"occupied_threshold": 0.45}, "occupied_threshold must be above the prior"),
         ({"prior": 0.8}, "p_hit must be greater than the prior"),
     ],
 )
