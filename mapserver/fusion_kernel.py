@@ -247,7 +247,7 @@ def apply_marks(
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
     ``last_observed <- max(last_observed, stamp)``.
-    fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``_fade``), owned by the caller.
+    fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``fade``), owned by the caller.
     """
     res2 = resolution * resolution
     weighted = pose_var_xy > 0.0 or pose_var_yaw > 0.0
@@ -271,7 +271,7 @@ def apply_marks(
             if policy == POLICY_DECAY:
                 t = last_observed[idx]
                 if t < stamp:  # False for NaN (never observed): nothing to fade
-                    value = _fade(
+                    value = fade(
                         value,
                         l0,
                         t,
@@ -297,7 +297,7 @@ FADE_CACHE_SIZE = 1024
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _fade(value, l0, t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free):
+def fade(value, l0, t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free):
     """``value`` last observed at ``t`` [s], faded toward ``l0`` up to ``stamp`` [s].
 
     ``2 ** x`` costs more than the rest of an update, and the cells one scan touches were
@@ -328,7 +328,7 @@ def faded_log_odds(
         value = log_odds[i]
         t = last_observed[i]
         if t < stamp:
-            value = _fade(
+            value = fade(
                 value, l0, t, stamp, stamp_bits[i], fade_cache, half_life_occupied, half_life_free
             )
         out[i] = value

@@ -8,7 +8,8 @@ never see each other; ``LayeredCostmap`` (``mapserver.costmap``) drives them.
 - ``StaticLayer``: a map file (walls, racks that never move), written over the region.
 - ``ObstacleLayer``: the belief grid by its thresholds, combined as Nav2's
   ``updateWithMaxWithoutUnknownOverwrite``: an UNKNOWN obstacle cell never overwrites a
-  known master cell, a known one overwrites an UNKNOWN master cell, otherwise the max.
+  known master cell, a known one overwrites an UNKNOWN master cell, otherwise the max
+  (``obstacle_kernel``).
   Under the ``decay`` policy it reports, per tile, when its costs next change.
 - ``InflationLayer``: Nav2's inflation of LETHAL cells (``mapserver.inflation``).
 """
@@ -22,6 +23,7 @@ import numpy as np
 
 from mapserver.belief import BeliefGrid, CellBox
 from mapserver.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.fusion_kernel import FADE_CACHE_SIZE
 from mapserver.geometry import GridGeometry
 from mapserver.inflation import InflationParams, Inflator
 from mapserver.mapfiles import RosMap
@@ -48,13 +50,6 @@ class Layer(Protocol):
     def fresh(self) -> Layer:
         """The same layer with none of its incremental state (for from-scratch builds)."""
         ...
-
-
-def max_without_unknown_overwrite(master: np.ndarray, layer: np.ndarray) -> None:
-    """Nav2's MaxWithoutUnknownOverwrite, in place on ``master`` (same-shape uint8)."""
-    known = layer != UNKNOWN
-    take = known & ((master == UNKNOWN) | (layer > master))
-    master[take] = layer[take]
 
 
 class StaticLayer:
@@ -103,6 +98,7 @@ class ObstacleLayer:
         g = belief.geometry
         self._tiles_shape = (math.ceil(g.height / tile), math.ceil(g.width / tile))
         self.next_change = np.full(self._tiles_shape, math.inf)  # [s] per tile
+        self._fade_cache = np.empty((FADE_CACHE_SIZE, 3), dtype=np.float64)
 
     def aligned(self, box: CellBox) -> CellBox:
         """``box`` grown to whole tiles (clipped to the grid)."""
@@ -135,26 +131,26 @@ class ObstacleLayer:
         return regions
 
     def update_costs(self, master: np.ndarray, box: CellBox, stamp: float) -> None:
-        region = self.aligned(box)
-        costs = self.costs_at(stamp, region)
-        inner = costs[box.row0 - region.row0 : box.row1 - region.row0 + 1,
-                      box.col0 - region.col0 : box.col1 - region.col0 + 1]  # fmt: skip
-        view = master[box.slices]
-        max_without_unknown_overwrite(view, inner)
+        self.merge_costs(master[box.slices], stamp, box)
 
     def fresh(self) -> ObstacleLayer:
         return ObstacleLayer(self.belief, self.tile)
 
-    def costs_at(self, stamp: float, box: CellBox) -> np.ndarray:
-        """Obstacle costs (uint8) of tile-aligned ``box`` at ``stamp`` [s]; refreshes the
-        decay schedule of the tiles it covers."""
+    def merge_costs(self, window: np.ndarray, stamp: float, box: CellBox) -> None:
+        """Merge obstacle costs of ``box`` at ``stamp`` [s] into the master ``window``
+        (MaxWithoutUnknownOverwrite) and refresh the decay schedule.
+
+        Tiles wholly inside ``box`` get their next change recomputed; tiles it covers in
+        part can only be lowered to crossings they already hold (their other cells were
+        not read), so every phase-1 region, being tile-aligned, is fully rescheduled.
+        """
         b = self.belief
         m, d = b.sensor_model, b.decay
-        out = np.empty((box.height, box.width), dtype=np.uint8)
         t = self.tile
-        self.next_change[box.row0 // t : box.row1 // t + 1, box.col0 // t : box.col1 // t + 1] = (
-            math.inf
-        )
+        g = b.geometry
+        rows = slice(-(-box.row0 // t), (box.row1 + 1) // t if box.row1 + 1 < g.height else None)
+        cols = slice(-(-box.col0 // t), (box.col1 + 1) // t if box.col1 + 1 < g.width else None)
+        self.next_change[rows, cols] = math.inf
         classify_window(
             b.raw_log_odds().ravel(),
             b.last_observed().ravel(),
@@ -170,11 +166,11 @@ class ObstacleLayer:
             m.l_free,
             d.half_life_occupied,
             d.half_life_free,
-            out,
+            window,
             self.tile,
             self.next_change,
+            self._fade_cache,
         )
-        return out
 
 
 class InflationLayer:

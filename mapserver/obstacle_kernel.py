@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from mapserver.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.fusion_kernel import fade
 
 # A tile is revisited slightly before its computed crossing so float rounding can never
 # make it late; visiting early is harmless (the tile is reclassified, nothing changes).
@@ -46,17 +47,23 @@ def classify_window(
     out,
     tile,
     tile_next,
+    fade_cache,
 ):
-    """Obstacle costs of cells (col0..col1, row0..row1) at ``stamp`` [s] into ``out``.
+    """Merge obstacle costs of cells (col0..col1, row0..row1) at ``stamp`` [s] into ``out``.
 
     log_odds (float32), last_observed (float64, NaN = never): flat grid arrays.
-    out: uint8 (row1 - row0 + 1, col1 - col0 + 1): LETHAL above the occupied threshold,
-    FREE below the free threshold, UNKNOWN otherwise (never observed, faded, uncertain).
+    Obstacle costs: LETHAL above the occupied threshold, FREE below the free threshold,
+    UNKNOWN otherwise (never observed, faded, uncertain).
+    out: uint8 (row1 - row0 + 1, col1 - col0 + 1) master window; each known obstacle cost
+    is merged into it as Nav2's MaxWithoutUnknownOverwrite (``layers`` module).
     fades: the decay policy (else the stored log-odds are read as they are).
     tile_next: float64 (tile rows, tile cols) of the grid; for every tile that the window
     covers, it is *lowered* to the earliest future crossing of the window's cells in that
     tile (the caller resets covered tiles to +inf first, with tile-aligned windows).
+    fade_cache: scratch for ``fusion_kernel.fade``, shape (FADE_CACHE_SIZE, 3).
     """
+    fade_cache[:, 0] = math.nan
+    stamp_bits = last_observed.view(np.int64)
     for row in range(row0, row1 + 1):
         trow = row // tile
         base = row * width
@@ -65,15 +72,14 @@ def classify_window(
             value = np.float64(log_odds[idx])
             t = last_observed[idx]
             if math.isnan(t):
-                out[row - row0, col - col0] = UNKNOWN
-                continue
+                continue  # unknown never overwrites
             dev = value - l0
             if fades and t < stamp:
-                hl = half_life_occupied if dev > 0.0 else half_life_free
-                faded = np.float32(l0 + dev * 2.0 ** (-(stamp - t) / hl))
-                value = np.float64(faded)
+                faded = fade(value, l0, t, stamp, stamp_bits[idx], fade_cache,
+                             half_life_occupied, half_life_free)  # fmt: skip
+                value = np.float64(np.float32(faded))  # as the belief's float32 views
             if value > l_occupied:
-                out[row - row0, col - col0] = LETHAL
+                _merge(out, row - row0, col - col0, LETHAL)
                 if fades:
                     cross = t + half_life_occupied * math.log2(dev / (l_occupied - l0))
                     cross -= EARLY_FRACTION * half_life_occupied + EARLY_SECONDS
@@ -81,13 +87,19 @@ def classify_window(
                     if cross < tile_next[trow, tcol]:
                         tile_next[trow, tcol] = cross
             elif value < l_free:
-                out[row - row0, col - col0] = FREE
+                _merge(out, row - row0, col - col0, FREE)
                 if fades:
                     cross = t + half_life_free * math.log2(dev / (l_free - l0))
                     cross -= EARLY_FRACTION * half_life_free + EARLY_SECONDS
                     tcol = col // tile
                     if cross < tile_next[trow, tcol]:
                         tile_next[trow, tcol] = cross
-            else:
-                out[row - row0, col - col0] = UNKNOWN
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _merge(master, r, c, cost):
+    """A known layer cost into the master: it replaces UNKNOWN, otherwise the max wins."""
+    old = master[r, c]
+    if old == UNKNOWN or cost > old:
+        master[r, c] = cost
