@@ -76,3 +76,12 @@ def test_free_cells_need_repeated_passes_to_read_free():
         b.fuse(make_scan([5.0], stamp=100.0))
         expected = CellState.FREE if i == 2 else CellState.UNKNOWN  # -1.216 < logit(0.25)
         assert b.states_at(100.0)[0, 0] == expected
+
+
+def test_the_freshness_view_gives_the_age_of_each_cells_evidence():
+    b = observed_grid()
+    b.fuse(make_scan([2.0], stamp=103.0))  # cells 0..2 seen again
+    age = b.age_at(110.0)[0]
+    assert age[:3].tolist() == [7.0, 7.0, 7.0]
+    assert age[3:6].tolist() == [10.0, 10.0, 10.0]
+    assert np.all(np.isnan(age[6:]))
