@@ -94,6 +94,15 @@ class FusionResult:
     box: CellBox
 
 
+@dataclass(frozen=True)
+class CellSample:
+    """Per-cell reads of a set of cells: CellState, p_occ (NaN unknown), last_observed [s]."""
+
+    states: np.ndarray
+    p_occ: np.ndarray
+    last_observed: np.ndarray
+
+
 class BeliefGrid:
     """A log-odds occupancy grid with per-cell freshness, fused one scan at a time.
 
@@ -216,9 +225,13 @@ class BeliefGrid:
         """
         box = box or self.full_box
         raw = self.raw_log_odds()[box.slices]
-        if not self.fades or not self._has_stamp(stamp):
-            return raw.copy()
         t = self.last_observed()[box.slices]
+        return self._faded(raw, t, stamp)
+
+    def _faded(self, raw: np.ndarray, t: np.ndarray, stamp: float | None) -> np.ndarray:
+        """Stored log-odds ``raw`` last observed at ``t``, faded to ``stamp`` (a new array)."""
+        if not self.fades or not self._has_stamp(stamp):
+            return np.array(raw, dtype=np.float32)
         out = np.empty(raw.size, dtype=np.float32)
         kernel.faded_log_odds(
             np.ascontiguousarray(raw).ravel(),
@@ -243,7 +256,10 @@ class BeliefGrid:
     def known_mask(self, log_odds: np.ndarray, box: CellBox | None = None) -> np.ndarray:
         """Cells observed and not faded back to the prior, for log-odds read from ``box``."""
         box = box or self.full_box
-        observed = ~np.isnan(self.last_observed()[box.slices])
+        return self._known(log_odds, self.last_observed()[box.slices])
+
+    def _known(self, log_odds: np.ndarray, last_observed: np.ndarray) -> np.ndarray:
+        observed = ~np.isnan(last_observed)
         if not self.fades:
             return observed
         return observed & (np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound)
@@ -251,14 +267,30 @@ class BeliefGrid:
     def probability_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
         """Occupancy probability (float32) at ``stamp``; NaN where unknown (never/faded)."""
         lo = self.log_odds_at(stamp, box)
-        p = (1.0 / (1.0 + np.exp(-lo.astype(np.float64)))).astype(np.float32)
-        p[~self.known_mask(lo, box)] = np.nan
+        return self._probability(lo, self.known_mask(lo, box))
+
+    @staticmethod
+    def _probability(log_odds: np.ndarray, known: np.ndarray) -> np.ndarray:
+        p = (1.0 / (1.0 + np.exp(-log_odds.astype(np.float64)))).astype(np.float32)
+        p[~known] = np.nan
         return p
 
     def states_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
         """CellState per cell (uint8) at ``stamp`` [s] for ``box`` (default: whole grid)."""
         lo = self.log_odds_at(stamp, box)
         return self.states_from_log_odds(lo, self.known_mask(lo, box))
+
+    def sample(self, indices: np.ndarray, stamp: float | None = None) -> CellSample:
+        """States, probabilities and stamps of the cells at flat ``indices`` at ``stamp``."""
+        idx = np.asarray(indices, dtype=np.int64)
+        t = self._last_observed[idx]
+        lo = self._faded(self._log_odds[idx], t, stamp)
+        known = self._known(lo, t)
+        return CellSample(
+            states=self.states_from_log_odds(lo, known),
+            p_occ=self._probability(lo, known),
+            last_observed=t,
+        )
 
     def states_from_log_odds(self, log_odds: np.ndarray, known: np.ndarray) -> np.ndarray:
         """Classify log-odds by the thresholds; cells not ``known`` are UNKNOWN."""

@@ -1,0 +1,517 @@
+"""The map server's settings: defaults, a YAML config file, ``FLEETMAP_*`` variables, flags.
+
+Precedence, highest first: explicit overrides (the command line's flags), environment
+variables, the YAML config file, the defaults below. Environment variables are named
+``FLEETMAP_`` + the field, ``__`` between nested names, any letter case::
+
+    FLEETMAP_PORT=8800
+    FLEETMAP_SENSOR_MODEL__P_HIT=0.75
+    FLEETMAP_TOKENS='[{"token": "s3cret", "role": "admin"}]'
+
+A config file is a YAML mapping with the same names (see ``Settings``); unknown names are
+errors, so a typo never passes silently. Relative paths in a config file (``data_dir``,
+``map_yaml``) are relative to the file's folder; elsewhere to the working directory.
+
+Everything is checked when the settings are built, by the domain classes themselves
+(``GridGeometry``, ``SensorModel``, ``DecayParams``, ``InflationParams``, ``BeliefGrid``
+for the rules that join them, ``read_ros_map`` for ``map_yaml``): their error becomes a
+pydantic error at the field it names, e.g. ``sensor_model.p_hit``. ``load_settings``
+turns all problems into one ``SettingsError`` with one line per problem.
+
+Security: bearer tokens with roles (``unit`` posts scans, ``reader`` reads, ``admin``
+does both and more). With no token configured the server is open, and an open server may
+only bind a loopback address (127.0.0.0/8, ::1, ``localhost``).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import os
+from abc import abstractmethod
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
+from enum import StrEnum
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Literal
+
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    SecretStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
+
+from mapserver.belief import BeliefGrid
+from mapserver.geometry import GridGeometry
+from mapserver.inflation import InflationParams
+from mapserver.mapfiles import MapFileError, RosMap, read_ros_map
+from mapserver.scan import DEFAULT_MAX_BEAMS
+from mapserver.sensor_model import DecayParams, Policy, SensorModel
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8700
+DEFAULT_DATA_DIR = Path("fleetmap-data")
+MIB = 1024 * 1024
+
+_SENSOR = SensorModel()
+_DECAY = DecayParams()
+_INFLATION = InflationParams()
+
+# The YAML config file's contents while ``Settings.from_yaml`` builds an instance.
+_CONFIG_FILE_DATA: ContextVar[Mapping[str, Any]] = ContextVar(
+    "fleetmap_config", default=MappingProxyType({})
+)
+
+
+class SettingsError(ValueError):
+    """Invalid settings or an unreadable config file; ``problems`` holds one line each.
+
+    Each problem reads ``field: what is wrong, got value`` (``field`` dotted, e.g.
+    ``sensor_model.p_hit``, or ``config`` for the file itself).
+    """
+
+    def __init__(self, problems: list[str], source: str = "") -> None:
+        self.problems = problems
+        where = f" ({source})" if source else ""
+        lines = "\n".join(f"  {problem}" for problem in problems)
+        super().__init__(f"invalid fleetmap settings{where}:\n{lines}")
+
+
+class Role(StrEnum):
+    """What a bearer token may do (CONTRACT section 2)."""
+
+    UNIT = "unit"  # post scans
+    READER = "reader"  # read maps, costmaps, queries
+    ADMIN = "admin"  # everything
+
+
+# ---------------------------------------------------------------------------- sections
+class _Section(BaseModel):
+    """A nested group of settings; unknown names are errors."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _DomainSection(_Section):
+    """Settings that mirror a domain class field for field, checked by that class.
+
+    ``build()`` constructs the domain object; a ``ValueError`` it raises becomes a
+    validation error located at the field its message starts with.
+    """
+
+    @abstractmethod
+    def build(self) -> Any:
+        """The domain object with these values (each section names its class)."""
+
+    @model_validator(mode="after")
+    def _check_with_domain_class(self) -> _DomainSection:
+        try:
+            self.build()
+        except ValueError as exc:
+            raise _located_error(self, exc) from None
+        return self
+
+
+class GridSettings(_DomainSection):
+    """The grid when no ``map_yaml`` is given (the default: 100 m x 50 m at 5 cm).
+
+    width, height: [cells]. resolution: [m/cell]. origin_x, origin_y: [m] world position
+    of the outer corner of cell (0, 0).
+    """
+
+    width: int = 2000
+    height: int = 1000
+    resolution: float = 0.05
+    origin_x: float = 0.0
+    origin_y: float = 0.0
+
+    def build(self) -> GridGeometry:
+        return GridGeometry(**self.model_dump())
+
+
+class SensorModelSettings(_DomainSection):
+    """The inverse sensor model (``SensorModel`` documents each value and its units)."""
+
+    p_hit: float = _SENSOR.p_hit
+    p_miss: float = _SENSOR.p_miss
+    prior: float = _SENSOR.prior
+    clamp_min: float = _SENSOR.clamp_min
+    clamp_max: float = _SENSOR.clamp_max
+    occupied_threshold: float = _SENSOR.occupied_threshold
+    free_threshold: float = _SENSOR.free_threshold
+
+    def build(self) -> SensorModel:
+        return SensorModel(**self.model_dump())
+
+
+class DecaySettings(_DomainSection):
+    """Freshness decay of the ``decay`` policy: half lives [s], fade bound [log-odds]."""
+
+    half_life_occupied: float = _DECAY.half_life_occupied
+    half_life_free: float = _DECAY.half_life_free
+    fade_bound: float = _DECAY.fade_bound
+
+    def build(self) -> DecayParams:
+        return DecayParams(**self.model_dump())
+
+
+class InflationSettings(_DomainSection):
+    """Nav2-style inflation (``InflationParams``): radii [m], cost_scaling_factor [1/m]."""
+
+    inflation_radius: float = _INFLATION.inflation_radius
+    cost_scaling_factor: float = _INFLATION.cost_scaling_factor
+    inscribed_radius: float = _INFLATION.inscribed_radius
+    inflate_unknown: bool = _INFLATION.inflate_unknown
+
+    def build(self) -> InflationParams:
+        return InflationParams(**self.model_dump())
+
+
+class TokenSettings(_Section):
+    """One bearer token: the secret, its role, and a name for logs (never the secret)."""
+
+    token: SecretStr
+    role: Role
+    name: str | None = None
+
+    @field_validator("token")
+    @classmethod
+    def _token_is_usable(cls, value: SecretStr) -> SecretStr:
+        secret = value.get_secret_value()
+        if not secret or any(ch.isspace() for ch in secret):
+            raise PydanticCustomError(
+                "token", "must be a non-empty string without whitespace (value not shown)"
+            )
+        return value
+
+
+class LimitsSettings(_Section):
+    """Request limits: body size [bytes], beams per scan, scans per batch."""
+
+    max_body_bytes: int = Field(default=2 * MIB, gt=0)
+    max_beams: int = Field(default=DEFAULT_MAX_BEAMS, gt=0)
+    max_batch: int = Field(default=256, gt=0)
+
+
+class JournalSettings(_Section):
+    """Durability and history.
+
+    synchronous: SQLite's ``FULL`` (acknowledged scans survive power loss), ``NORMAL``
+        or ``OFF`` (they survive a process crash only); ``mapserver.journal`` explains.
+    snapshot_every_scans, snapshot_every_seconds [s]: snapshot the grid after this many
+        scans or this long since the last snapshot, whichever comes first.
+    keep_snapshots: how many snapshots the journal keeps.
+    history: how many costmap versions' patches are kept for ``/v1/costmap/updates``.
+    """
+
+    synchronous: Literal["FULL", "NORMAL", "OFF"] = "FULL"
+    snapshot_every_scans: int = Field(default=2000, gt=0)
+    snapshot_every_seconds: float = Field(default=60.0, gt=0, allow_inf_nan=False)
+    keep_snapshots: int = Field(default=2, gt=0)
+    history: int = Field(default=256, gt=0)
+
+    @field_validator("synchronous", mode="before")
+    @classmethod
+    def _upper_case(cls, value: Any) -> Any:
+        return value.upper() if isinstance(value, str) else value
+
+
+# ---------------------------------------------------------------------------- settings
+class Settings(BaseSettings):
+    """All of the map server's settings; see the module docstring for where they come from.
+
+    host, port: where to listen (port 0: any free port).
+    data_dir: the journal and snapshots live here; a restart on it restores the map.
+    map_yaml: a ROS map (YAML + image): gives the grid's size, resolution and origin
+        (``grid`` is then ignored) and seeds the static layer.
+    grid: the grid without ``map_yaml``.
+    sensor_model, policy, decay: how scans become beliefs (``BeliefGrid``).
+    inflation: how lethal cells inflate into the costmap.
+    max_clearing_range: [m] cap on how far a no-return beam clears (None: the scan's
+        own range_max).
+    tokens: bearer tokens; none means an open server on loopback only.
+    limits, journal: see their sections.
+    """
+
+    model_config = SettingsConfigDict(
+        env_prefix="FLEETMAP_",
+        env_nested_delimiter="__",
+        extra="forbid",
+        frozen=True,
+    )
+
+    host: str = DEFAULT_HOST
+    port: int = Field(default=DEFAULT_PORT, ge=0, le=65535)
+    data_dir: Path = DEFAULT_DATA_DIR
+    map_yaml: Path | None = None
+    grid: GridSettings = GridSettings()
+    sensor_model: SensorModelSettings = SensorModelSettings()
+    policy: Policy = Policy.DECAY
+    decay: DecaySettings = DecaySettings()
+    inflation: InflationSettings = InflationSettings()
+    max_clearing_range: float | None = None
+    tokens: list[TokenSettings] = []
+    limits: LimitsSettings = LimitsSettings()
+    journal: JournalSettings = JournalSettings()
+
+    _static_map: RosMap | None = PrivateAttr(default=None)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Overrides, then ``FLEETMAP_*`` variables, then the config file (no .env files)."""
+        return (init_settings, env_settings, _ConfigFileSource(settings_cls))
+
+    @classmethod
+    def from_yaml(cls, path: str | os.PathLike[str], **overrides: Any) -> Settings:
+        """Settings from a YAML config file, under ``FLEETMAP_*`` variables and ``overrides``.
+
+        Raises SettingsError when the file cannot be read or is not a YAML mapping, and
+        pydantic's ValidationError when a value is invalid (``load_settings`` wraps both).
+        """
+        with _config_file_data(read_config_file(path)):
+            return cls(**overrides)
+
+    @field_validator("host")
+    @classmethod
+    def _host_not_empty(cls, value: str) -> str:
+        if not value.strip():
+            raise PydanticCustomError("host", "must be a host name or IP address")
+        return value.strip()
+
+    @model_validator(mode="after")
+    def _check_whole(self) -> Settings:
+        if not self.tokens and not is_loopback(self.host):
+            raise _error(
+                ("host",),
+                self.host,
+                "an open server (no tokens configured) may only bind a loopback address "
+                "(127.0.0.0/8, ::1, localhost); configure tokens to bind anything else",
+            )
+        seen: set[str] = set()
+        for i, token in enumerate(self.tokens):
+            secret = token.token.get_secret_value()
+            if secret in seen:
+                raise _error(("tokens", i, "token"), None, "duplicates an earlier token")
+            seen.add(secret)
+        if self.map_yaml is not None:
+            try:
+                self._static_map = read_ros_map(self.map_yaml)
+            except (MapFileError, OSError) as exc:
+                raise _error(("map_yaml",), str(self.map_yaml), str(exc)) from None
+        try:  # the rules that join sensor model, policy, decay and clearing range
+            self.belief_grid(GridGeometry(1, 1, 1.0))
+        except ValueError as exc:
+            raise _located_error(self, exc) from None
+        return self
+
+    # ------------------------------------------------------------ domain objects
+    @property
+    def open_access(self) -> bool:
+        """True when no token is configured: every request is allowed (loopback only)."""
+        return not self.tokens
+
+    def token_roles(self) -> dict[str, Role]:
+        """Each configured token's secret -> its role."""
+        return {t.token.get_secret_value(): t.role for t in self.tokens}
+
+    def static_map(self) -> RosMap | None:
+        """The map read from ``map_yaml`` at validation, or None without one."""
+        return self._static_map
+
+    def geometry(self) -> GridGeometry:
+        """The grid's geometry: ``map_yaml``'s when given, else ``grid``'s."""
+        if self._static_map is not None:
+            return self._static_map.geometry
+        return self.grid.build()
+
+    def build_sensor_model(self) -> SensorModel:
+        """The inverse sensor model."""
+        return self.sensor_model.build()
+
+    def build_decay(self) -> DecayParams:
+        """The decay parameters."""
+        return self.decay.build()
+
+    def build_inflation(self) -> InflationParams:
+        """The inflation parameters."""
+        return self.inflation.build()
+
+    def clearing_range(self) -> float:
+        """[m] the cap on a no-return beam's clearing (inf: the scan's own range_max)."""
+        return math.inf if self.max_clearing_range is None else self.max_clearing_range
+
+    def belief_grid(self, geometry: GridGeometry | None = None) -> BeliefGrid:
+        """A new, empty belief grid with these settings (on ``geometry()`` by default)."""
+        return BeliefGrid(
+            geometry or self.geometry(),
+            sensor_model=self.build_sensor_model(),
+            policy=self.policy,
+            decay=self.build_decay(),
+            max_clearing_range=self.clearing_range(),
+        )
+
+
+class _ConfigFileSource(PydanticBaseSettingsSource):
+    """The config file's mapping, as ``Settings.from_yaml`` read it (lowest priority)."""
+
+    def get_field_value(self, field: Any, field_name: str) -> tuple[Any, str, bool]:
+        return _CONFIG_FILE_DATA.get().get(field_name), field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        return dict(_CONFIG_FILE_DATA.get())
+
+
+@contextmanager
+def _config_file_data(data: Mapping[str, Any]) -> Iterator[None]:
+    token = _CONFIG_FILE_DATA.set(data)
+    try:
+        yield
+    finally:
+        _CONFIG_FILE_DATA.reset(token)
+
+
+# ---------------------------------------------------------------------------- loading
+_PATH_KEYS = ("data_dir", "map_yaml")
+
+
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The mapping in a YAML config file, relative paths resolved against its folder.
+
+    Raises SettingsError (field ``config``) when the file cannot be read, is not YAML or
+    does not hold a mapping. An empty file is an empty mapping.
+    """
+    source = Path(path)
+    where = f"config {source}"
+    try:
+        text = source.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SettingsError([f"config: cannot read the file ({exc})"], where) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SettingsError([f"config: not valid YAML ({exc})"], where) from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise SettingsError(
+            [f"config: must be a mapping of setting names to values, got {type(data).__name__}"],
+            where,
+        )
+    for key in _PATH_KEYS:
+        value = data.get(key)
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            data[key] = str(source.parent / value)
+    return data
+
+
+def load_settings(
+    config_path: str | os.PathLike[str] | None, overrides: Mapping[str, Any]
+) -> Settings:
+    """Settings from an optional config file, ``FLEETMAP_*`` variables and overrides.
+
+    overrides: values that beat everything else (the command line's flags). A None value
+        means "not given" and is dropped; a dotted key sets a nested value
+        (``{"sensor_model.p_hit": 0.8}``).
+    Raises SettingsError listing every problem, one ``field: problem, got value`` a line.
+    """
+    values = _nest(overrides)
+    source = f"config {config_path}" if config_path is not None else ""
+    try:
+        if config_path is None:
+            return Settings(**values)
+        return Settings.from_yaml(config_path, **values)
+    except ValidationError as exc:
+        raise SettingsError(describe_errors(exc), source) from None
+
+
+def describe_errors(exc: ValidationError) -> list[str]:
+    """One ``field: problem, got value`` line per pydantic error (token secrets hidden)."""
+    lines = []
+    for error in exc.errors():
+        loc = error["loc"]
+        field = _dotted(loc) or "settings"
+        message = error["msg"]
+        secret = bool(loc) and loc[-1] == "token"
+        if "got " not in message and error["type"] != "missing" and not secret:
+            message = f"{message}, got {error['input']!r}"
+        lines.append(f"{field}: {message}")
+    return lines
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    name = host.strip().strip("[]").lower()
+    if name == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
+
+
+def _nest(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Drop None values and expand dotted keys into nested mappings."""
+    nested: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        *parents, leaf = key.split(".")
+        target = nested
+        for part in parents:
+            target = target.setdefault(part, {})
+        target[leaf] = value
+    return nested
+
+
+def _dotted(loc: tuple[int | str, ...]) -> str:
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+def _error(loc: tuple[int | str, ...], value: Any, reason: str) -> ValidationError:
+    """A validation error at ``loc`` whose message is ``reason``."""
+    details = InitErrorDetails(
+        type=PydanticCustomError("invalid", "{reason}", {"reason": reason}), loc=loc, input=value
+    )
+    return ValidationError.from_exception_data("Settings", [details])
+
+
+def _located_error(model: BaseModel, exc: ValueError) -> ValidationError:
+    """A domain ``ValueError`` as a validation error at the field its message starts with.
+
+    The domain classes begin every message with the field's name (``p_hit must be ...``,
+    ``decay.fade_bound must be ...``); when that name is a field of ``model`` the error is
+    placed there with the rest of the message, else on ``model`` with the whole message.
+    """
+    message = str(exc)
+    head, _, rest = message.partition(" ")
+    value: Any = model
+    loc: tuple[str, ...] = ()
+    for part in head.split("."):
+        if not isinstance(value, BaseModel) or part not in type(value).model_fields:
+            return _error((), None, message)
+        value, loc = getattr(value, part), (*loc, part)
+    return _error(loc, value, rest)
