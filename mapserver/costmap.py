@@ -82,8 +82,11 @@ class LayeredCostmap:
     """Layers combined in order into one uint8 costmap, kept current incrementally.
 
     geometry: the grid. layers: in the order they are applied (e.g. static, obstacle,
-    inflation). history: how many versions of changed boxes are kept for patches.
-    The costmap starts built at ``stamp`` (default -inf: only static information).
+    inflation). history: how many changed boxes are kept for patches.
+    The costmap starts built at ``stamp`` (default -inf: only static information) as
+    ``version`` (default 0). By default every update that changes a cell bumps the
+    version by one; a caller that numbers versions itself (the map server: one per scan)
+    passes ``version`` to ``update``.
     """
 
     def __init__(
@@ -92,29 +95,36 @@ class LayeredCostmap:
         layers: Sequence[Layer],
         history: int = 256,
         stamp: float = float("-inf"),
+        version: int = 0,
     ) -> None:
         if history < 1:
             raise ValueError(f"history must be at least 1 version, got {history!r}")
         self.geometry = geometry
         self.layers = list(layers)
         self.costs = np.full(geometry.shape, UNKNOWN, dtype=np.uint8)
-        self.version = 0
+        self.version = version
         self.stamp = stamp
         self._history: deque[tuple[int, CellBox]] = deque(maxlen=history)
+        self._floor = version  # patches exist since any version >= this
         self._full = CellBox(0, 0, geometry.width - 1, geometry.height - 1)
-        self.update(stamp, [self._full])
+        self.update(stamp, [self._full], version=version)
 
     @property
     def oldest_patch_version(self) -> int:
         """Patches are available since this version (inclusive)."""
-        return self._history[0][0] - 1 if self._history else self.version
+        return self._floor
 
-    def update(self, stamp: float, changed: Sequence[CellBox] = ()) -> CellBox:
+    def update(
+        self, stamp: float, changed: Sequence[CellBox] = (), version: int | None = None
+    ) -> CellBox:
         """Bring the costmap to ``stamp`` [s] (never backwards) after ``changed`` boxes.
 
-        Returns the bounding box of the cells whose cost changed (empty if none); bumps
-        ``version`` once if any changed.
+        Returns the bounding box of the cells whose cost changed (empty if none). The
+        costmap is then at ``version`` (>= the current one) if given, else at the next
+        version if any cell changed.
         """
+        if version is not None and version < self.version:
+            raise ValueError(f"version must not go backwards from {self.version}, got {version}")
         stamp = max(stamp, self.stamp)
         regions = list(changed)
         for layer in self.layers:
@@ -128,9 +138,13 @@ class LayeredCostmap:
             self._compose(self.costs, bounds, stamp)
             touched = touched.union(changed_box(before, self.costs[bounds.slices], bounds))
         self.stamp = stamp
+        if version is None:
+            version = self.version + (0 if touched.empty else 1)
+        self.version = version
         if not touched.empty:
-            self.version += 1
-            self._history.append((self.version, touched))
+            if len(self._history) == self._history.maxlen:
+                self._floor = self._history[0][0]  # clients at that version need only later
+            self._history.append((version, touched))
         return touched
 
     def _compose(self, master: np.ndarray, bounds: CellBox, stamp: float) -> None:
@@ -154,3 +168,14 @@ class LayeredCostmap:
         """A from-scratch costmap at ``stamp`` [s]: fresh layers, nothing cached is used."""
         fresh = [layer.fresh() for layer in self.layers]
         return LayeredCostmap(self.geometry, fresh, history=1, stamp=stamp).costs
+
+    def rebuild(self, stamp: float, version: int) -> None:
+        """Recompute everything at ``stamp`` as ``version`` (after loading a snapshot);
+        patch history starts afresh."""
+        for layer in self.layers:
+            layer.reset()
+        self._history.clear()
+        self.stamp = float("-inf")
+        self.version = version
+        self._floor = version
+        self.update(stamp, [self._full], version=version)

@@ -51,6 +51,10 @@ class Layer(Protocol):
         """The same layer with none of its incremental state (for from-scratch builds)."""
         ...
 
+    def reset(self) -> None:
+        """Forget incremental state (the sources it reads were replaced)."""
+        ...
+
 
 class StaticLayer:
     """Costs from a ROS map: occupancy >= ``lethal_threshold`` is LETHAL, -1 UNKNOWN,
@@ -80,6 +84,9 @@ class StaticLayer:
 
     def fresh(self) -> StaticLayer:
         return self
+
+    def reset(self) -> None:
+        return None
 
 
 class ObstacleLayer:
@@ -135,6 +142,9 @@ class ObstacleLayer:
 
     def fresh(self) -> ObstacleLayer:
         return ObstacleLayer(self.belief, self.tile)
+
+    def reset(self) -> None:
+        self.next_change.fill(math.inf)
 
     def merge_costs(self, window: np.ndarray, stamp: float, box: CellBox) -> None:
         """Merge obstacle costs of ``box`` at ``stamp`` [s] into the master ``window``
@@ -194,3 +204,6 @@ class InflationLayer:
 
     def fresh(self) -> InflationLayer:
         return self
+
+    def reset(self) -> None:
+        return None

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from mapserver.cli_map import add_map_parser
+from mapserver.cli_serve import add_serve_parsers
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
     add_map_parser(sub)
+    add_serve_parsers(sub)
     return parser
 
 

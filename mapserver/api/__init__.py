@@ -1,0 +1,1 @@
+"""The map server's HTTP edge (FastAPI): a thin layer over ``mapserver.service``."""

@@ -1,0 +1,93 @@
+"""``create_app(settings)``: the map server's FastAPI application.
+
+The app owns one ``MapService`` (created here, restored from its data directory, closed
+at shutdown). Every error reply is ``{"detail": "<field>: <problem>, got <value>"}``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from mapserver.api import routes_maps, routes_ops, routes_query, routes_scans
+from mapserver.api.metrics import ServerMetrics
+from mapserver.api.schemas import ScanBatchIn, ScanIn
+from mapserver.service import MapService
+from mapserver.settings import Settings
+
+
+def create_app(settings: Settings, service: MapService | None = None) -> FastAPI:
+    """The app for ``settings``; ``service`` defaults to a new MapService on its data dir."""
+    service = service or MapService(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        yield
+        service.close()
+
+    app = FastAPI(
+        title="fleetmap map server",
+        version="1",
+        description="The fleet's shared occupancy map and Nav2-compatible costmap.",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.service = service
+    app.state.metrics = ServerMetrics(service)
+    app.state.token_roles = settings.token_roles()
+    for router in (routes_scans, routes_maps, routes_query, routes_ops):
+        app.include_router(router.router)
+    _add_body_schemas(app)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.middleware("http")(_observe_latency)
+    return app
+
+
+def _add_body_schemas(app: FastAPI) -> None:
+    """Publish the scan body models the scan routes reference (they read raw JSON)."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = build()
+            components = schema.setdefault("components", {}).setdefault("schemas", {})
+            for model in (ScanIn, ScanBatchIn):
+                model_schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+                components.update(model_schema.pop("$defs", {}))
+                components[model.__name__] = model_schema
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 naming the first offending field (its location) and value."""
+    first = exc.errors()[0]
+    where = ".".join(str(part) for part in first.get("loc", ()) if part != "body") or "body"
+    value = first.get("input")
+    detail = f"{where}: {first.get('msg', 'invalid')}, got {value!r:.80}"
+    return JSONResponse({"detail": detail}, status_code=422)
+
+
+async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+    return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=exc.headers)
+
+
+async def _observe_latency(request: Request, call_next: Any) -> Any:
+    start = time.perf_counter()
+    response = await call_next(request)
+    route = request.scope.get("route")
+    request.app.state.metrics.request_latency.labels(
+        request.method, getattr(route, "path", "unmatched"), str(response.status_code)
+    ).observe(time.perf_counter() - start)
+    return response

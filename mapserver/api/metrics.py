@@ -1,0 +1,45 @@
+"""Prometheus metrics of one server (its own registry): scans fused, fusion time, request
+latency, journal size, map version."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+from mapserver.service import MapService
+
+LATENCY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+
+
+class ServerMetrics:
+    """The metrics; ``registry`` is what ``GET /metrics`` renders."""
+
+    def __init__(self, service: MapService) -> None:
+        self.registry = CollectorRegistry()
+        self.scans_fused = Counter(
+            "fleetmap_scans_fused", "Scans accepted and fused into the map", registry=self.registry
+        )
+        self.scans_rejected = Counter(
+            "fleetmap_scans_rejected",
+            "Scan submissions refused, by HTTP status",
+            ["status"],
+            registry=self.registry,
+        )
+        self.request_latency = Histogram(
+            "fleetmap_request_seconds",
+            "HTTP request latency [s] by method, route and status",
+            ["method", "route", "status"],
+            buckets=LATENCY_BUCKETS,
+            registry=self.registry,
+        )
+        fusion = Gauge(
+            "fleetmap_fusion_seconds",
+            "Cumulative time [s] spent fusing scans and refreshing the costmap",
+            registry=self.registry,
+        )
+        fusion.set_function(lambda: service.fusion_seconds)
+        journal = Gauge(
+            "fleetmap_journal_bytes", "Size [bytes] of the journal files", registry=self.registry
+        )
+        journal.set_function(service.journal_bytes)
+        version = Gauge("fleetmap_map_version", "The map's version", registry=self.registry)
+        version.set_function(lambda: service.version)

@@ -1,0 +1,96 @@
+"""``POST /v1/scans`` and ``POST /v1/scans/batch`` (CONTRACT 2.1)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Any
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+
+from mapserver.api.auth import WRITE, require
+from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
+from mapserver.scan import Scan, ScanError
+from mapserver.service import IngestError, MapService
+
+router = APIRouter(tags=["scans"])
+
+ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 503)}
+
+
+def _body_schema(model: type) -> dict[str, Any]:
+    schema = {"$ref": f"#/components/schemas/{model.__name__}"}
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
+
+
+async def read_json(request: Request) -> Any:
+    """The request's JSON body, refused (413) past ``limits.max_body_bytes``."""
+    limit = request.app.state.settings.limits.max_body_bytes
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise HTTPException(413, f"body: at most {limit} bytes, got {declared}")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:
+            raise HTTPException(413, f"body: at most {limit} bytes, got more")
+        chunks.append(chunk)
+    try:
+        return json.loads(b"".join(chunks))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise HTTPException(400, f"body: not valid JSON ({exc})") from None
+
+
+def _parse(item: Any, prefix: str, max_beams: int) -> Scan:
+    try:
+        return Scan.from_dict(item, max_beams=max_beams)
+    except ScanError as exc:
+        raise HTTPException(422, f"{prefix}{exc}") from None
+
+
+async def _submit(request: Request, scans: list[Scan], bodies: list[dict]) -> list[Any]:
+    service: MapService = request.app.state.service
+    metrics = request.app.state.metrics
+    try:
+        acks = await asyncio.wrap_future(service.submit(scans, bodies))
+    except IngestError as exc:
+        metrics.scans_rejected.labels(str(exc.status)).inc()
+        raise HTTPException(exc.status, exc.detail) from None
+    metrics.scans_fused.inc(len(acks))
+    return acks
+
+
+@router.post(
+    "/v1/scans",
+    response_model=ScanAck,
+    responses=ERRORS,
+    openapi_extra=_body_schema(ScanIn),
+    dependencies=[Depends(require(WRITE))],
+    summary="Post one scan; durable once acknowledged",
+)
+async def post_scan(request: Request) -> ScanAck:
+    body = await read_json(request)
+    scan = _parse(body, "", request.app.state.settings.limits.max_beams)
+    (ack,) = await _submit(request, [scan], [body])
+    return ScanAck(seq=ack.seq, map_version=ack.map_version)
+
+
+@router.post(
+    "/v1/scans/batch",
+    response_model=ScanBatchAck,
+    responses=ERRORS,
+    openapi_extra=_body_schema(ScanBatchIn),
+    dependencies=[Depends(require(WRITE))],
+    summary="Post several scans; all are accepted or none",
+)
+async def post_scans(request: Request) -> ScanBatchAck:
+    body = await read_json(request)
+    limits = request.app.state.settings.limits
+    items = body.get("scans") if isinstance(body, dict) else None
+    if not isinstance(items, list) or not items:
+        raise HTTPException(422, f"scans: must be a non-empty list of scans, got {items!r:.80}")
+    if len(items) > limits.max_batch:
+        raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
+    scans = [_parse(item, f"scans[{i}].", limits.max_beams) for i, item in enumerate(items)]
+    acks = await _submit(request, scans, items)
+    return ScanBatchAck(acks=[ScanAck(seq=a.seq, map_version=a.map_version) for a in acks])

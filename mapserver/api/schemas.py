@@ -1,0 +1,144 @@
+"""Pydantic models of the HTTP API (CONTRACT section 2), for the OpenAPI schema and replies.
+
+Scan bodies are documented with ``ScanIn`` but validated by ``Scan.from_dict``, the one
+validator of scans, so errors read the same from every source.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, Field
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+MAX_QUERY_ITEMS = 100_000
+
+
+class PoseIn(BaseModel):
+    x: float = Field(description="[m] sensor x in the map frame")
+    y: float = Field(description="[m] sensor y in the map frame")
+    yaw: float = Field(description="[rad] counter-clockwise from +x")
+
+
+class PoseStdIn(BaseModel):
+    xy: float = Field(0.0, ge=0, description="[m] position standard deviation")
+    yaw: float = Field(0.0, ge=0, description="[rad] heading standard deviation")
+
+
+class ScanIn(BaseModel):
+    """One planar LiDAR scan (CONTRACT 2.1); ranges follow REP 117."""
+
+    unit_id: str = Field(min_length=1)
+    stamp: float = Field(description="[s] time used for freshness and decay")
+    frame: Literal["map"] = "map"
+    pose: PoseIn
+    pose_std: PoseStdIn | None = None
+    angle_min: float = Field(description="[rad] first beam, relative to pose.yaw")
+    angle_increment: float = Field(gt=0, description="[rad] between beams")
+    range_min: float = Field(ge=0, description="[m]")
+    range_max: float = Field(gt=0, description="[m]")
+    ranges: list[float | None] = Field(
+        min_length=1,
+        description="[m] per beam: a return, > range_max or Infinity for no return, null invalid",
+    )
+
+
+class ScanBatchIn(BaseModel):
+    scans: list[ScanIn] = Field(min_length=1)
+
+
+class ScanAck(BaseModel):
+    seq: int = Field(description="the scan's journal sequence number")
+    map_version: int = Field(description="a map version that includes the scan")
+
+
+class ScanBatchAck(BaseModel):
+    acks: list[ScanAck]
+
+
+class ErrorOut(BaseModel):
+    detail: str = Field(description="what was wrong: the field and its value")
+
+
+class Origin(BaseModel):
+    x: float
+    y: float
+    yaw: float
+
+
+class MapMeta(BaseModel):
+    resolution: float = Field(description="[m/cell]")
+    width: int = Field(description="[cells]")
+    height: int = Field(description="[cells]")
+    origin: Origin
+    frame: str
+    stamp: float | None = Field(description="[s] the map's now: the latest scan stamp")
+    version: int
+    policy: str
+    sensor_model: dict
+    decay: dict
+    inflation: dict
+    thresholds: dict
+
+
+class GridJson(BaseModel):
+    info: MapMeta
+    data: list[int] = Field(description="row-major, row 0 at the origin's y")
+
+
+class PatchOut(BaseModel):
+    x0: int
+    y0: int
+    width: int
+    height: int
+    data: list[int]
+
+
+class CostmapUpdates(BaseModel):
+    version: int
+    stamp: float | None = Field(None, description="[s] the map's stamp at that version")
+    full: bool = Field(False, description="true: the version is too old, read the full costmap")
+    patches: list[PatchOut] = []
+
+
+class CellsIn(BaseModel):
+    points: list[tuple[Finite, Finite]] = Field(
+        max_length=MAX_QUERY_ITEMS, description="[[x, y], ...] [m]"
+    )
+    at: Finite | None = Field(None, description="[s] evaluate decay at this stamp")
+
+
+class CellOut(BaseModel):
+    x: float
+    y: float
+    state: Literal["free", "occupied", "unknown", "outside"]
+    p_occ: float | None
+    cost: int | None
+    last_observed: float | None
+    age: float | None
+
+
+class CellsOut(BaseModel):
+    cells: list[CellOut]
+
+
+class SegmentsIn(BaseModel):
+    segments: list[tuple[Finite, Finite, Finite, Finite]] = Field(
+        max_length=MAX_QUERY_ITEMS, description="[[x0, y0, x1, y1], ...] [m]"
+    )
+
+
+class SegmentOut(BaseModel):
+    max_cost: int | None = Field(description="highest known cost on the segment")
+    blocked: bool = Field(description="a lethal or inscribed cell lies on it")
+    unknown_fraction: float
+    first_blocked: list[float] | None = Field(description="[x, y] of the first blocked cell")
+
+
+class SegmentsOut(BaseModel):
+    segments: list[SegmentOut]
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    version: int

@@ -1,0 +1,85 @@
+"""``fleetmap serve`` (the map server under uvicorn) and ``fleetmap replay`` (a map from
+a server's journal, written like ``map build``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from mapserver.settings import SettingsError, load_settings
+
+
+def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``serve`` and ``replay``."""
+    serve = subparsers.add_parser(
+        "serve",
+        help="run the map server",
+        description="Run the map server. Settings: --config YAML, FLEETMAP_* variables, "
+        "then these flags, each overriding the one before.",
+    )
+    serve.add_argument("--host", help="address to bind (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, help="port (default 8700; 0 picks a free one)")
+    serve.add_argument("--data-dir", type=Path, help="journal and snapshots (./fleetmap-data)")
+    serve.add_argument("--map", type=Path, dest="map_yaml", help="ROS map YAML: grid + static")
+    serve.add_argument("--config", type=Path, help="YAML settings file")
+    serve.set_defaults(handler=run_serve)
+
+    replay = subparsers.add_parser(
+        "replay",
+        help="rebuild a map from a server journal",
+        description="Replay a server's journal (its data dir or journal file) and write "
+        "map.yaml, map.pgm and logodds.npy as `map build` does.",
+    )
+    replay.add_argument("source", type=Path, help="server data dir or journal.sqlite3")
+    replay.add_argument("--until", type=float, help="[s] replay scans with stamp <= this")
+    replay.add_argument("--out", type=Path, default=Path("."), help="output folder (default .)")
+    replay.add_argument("--json", action="store_true", help="print the figures as JSON last")
+    replay.set_defaults(handler=run_replay)
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from mapserver.api.app import create_app
+    from mapserver.service import DataDirError
+
+    overrides = {
+        "host": args.host,
+        "port": args.port,
+        "data_dir": args.data_dir,
+        "map_yaml": args.map_yaml,
+    }
+    try:
+        settings = load_settings(args.config, overrides)
+        app = create_app(settings)
+    except (SettingsError, DataDirError) as exc:
+        print(f"fleetmap serve: error: {exc}", file=sys.stderr)
+        return 2
+    if settings.open_access:
+        print(
+            f"fleetmap serve: no tokens configured: the server is open to every client "
+            f"and bound to loopback ({settings.host}) only",
+            file=sys.stderr,
+        )
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning")
+    return 0
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    from mapserver.offline import fuse_all, write_map_outputs
+    from mapserver.replay import ReplayError, replay_journal
+
+    try:
+        belief, scans = replay_journal(args.source, until=args.until)
+    except ReplayError as exc:
+        print(f"fleetmap replay: error: {exc}", file=sys.stderr)
+        return 2
+    stats = fuse_all(belief, scans)
+    yaml_path = write_map_outputs(belief, args.out)
+    if args.json:
+        print(json.dumps(stats.as_dict()))
+    else:
+        print(f"replayed {stats.scans} scans; wrote {yaml_path}")
+    return 0

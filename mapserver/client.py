@@ -1,0 +1,749 @@
+"""``MapClient``: typed access to the map server's HTTP API (CONTRACT section 2).
+
+This module is the one place that knows the server's URLs. ``MapClient`` wraps an
+injected ``httpx.Client`` whose ``base_url`` names the server, so tests pass an
+``httpx.Client(transport=httpx.MockTransport(handler))`` or
+``httpx.Client(transport=httpx.ASGITransport(app))`` and production code a plain client::
+
+    with httpx.Client(base_url="http://127.0.0.1:8700") as http:
+        client = MapClient(http, token="...", timeout=2.0)
+        ack = client.post_scan(scan)
+        costs = client.follow_costmap(None)          # full costmap the first time ...
+        costs = client.follow_costmap(costs)         # ... then only the changed patches
+
+The client never closes, configures or mutates the injected ``httpx.Client``; it adds the
+``Authorization: Bearer TOKEN`` header and an explicit timeout [s] to each request.
+
+Errors - every failure raises a subclass of ``MapClientError``; each names the endpoint
+(``"POST /v1/scans"``) and carries the offending value:
+
+- ``MapClientError`` - base.
+
+  - ``MapServerUnavailable`` - no reply: connection refused or dropped, or a timeout.
+    Wraps the ``httpx.TransportError`` (``cause``). After this error on ``post_scan`` the
+    scan may or may not be durable: only a received ``ScanAck`` promises it. Re-sending
+    is safe against 409 (the stamp is not older) but may fuse the scan twice.
+  - ``MapRequestError`` - the server refused the request (any 4xx; nothing changed).
+    ``status`` and ``detail`` (the ``{"detail": ...}`` of the body, or the body text).
+
+    - ``Unauthorized`` - 401: missing or wrong token.
+    - ``Forbidden`` - 403: the token's role may not do this (a reader posting scans).
+    - ``Conflict`` - 409: e.g. a unit's stamp went backwards.
+    - ``InvalidRequest`` - 400, 413 (body too large) or 422 (a field failed validation).
+
+  - ``MapServerError`` - 5xx: a server bug. ``status`` and ``detail`` as above.
+  - ``MapProtocolError`` - a 2xx reply that breaks the contract: not JSON, a missing or
+    mistyped field or header, a raw body whose size is not ``width * height``.
+
+Wire format notes:
+
+- Scans are sent as JSON with no-return beams as the token ``Infinity`` (as Python's
+  ``json`` and ``mapserver.scanfile`` write them; CONTRACT 2.1 names +Infinity a valid
+  range), so bodies are encoded here rather than by httpx, which refuses non-finite floats.
+- ``POST /v1/scans/batch`` takes ``{"scans": [scan, ...]}`` and replies
+  ``200 {"acks": [{"seq": n, "map_version": v}, ...]}``, one ack per scan in order
+  (this reply shape is the project's extension of CONTRACT 2.1).
+- Grids are fetched as ``format=raw``: row-major bytes, row 0 at the origin's y (the
+  bottom row), so ``data[row, col]`` is cell (col, row) of ``GridGeometry``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import httpx
+import numpy as np
+
+from mapserver.costmap import Patch
+from mapserver.geometry import GridGeometry
+from mapserver.scan import Scan
+
+# ---------------------------------------------------------------------------- errors
+
+
+class MapClientError(Exception):
+    """Base of every error ``MapClient`` raises; ``endpoint`` is e.g. ``"GET /v1/map"``."""
+
+    def __init__(self, endpoint: str, message: str) -> None:
+        self.endpoint = endpoint
+        super().__init__(f"{endpoint}: {message}")
+
+
+class MapServerUnavailable(MapClientError):
+    """No reply (connect error, dropped connection, timeout); ``cause`` is the httpx error."""
+
+    def __init__(self, endpoint: str, cause: httpx.TransportError) -> None:
+        self.cause = cause
+        super().__init__(endpoint, f"map server unavailable ({type(cause).__name__}: {cause})")
+
+
+class _StatusError(MapClientError):
+    """An error status: ``status`` (HTTP code) and ``detail`` (the body's ``detail``)."""
+
+    def __init__(self, endpoint: str, status: int, detail: Any) -> None:
+        self.status = status
+        self.detail = detail
+        text = detail if isinstance(detail, str) else repr(detail)
+        super().__init__(endpoint, f"HTTP {status}: {_clip(text, 500)}")
+
+
+class MapRequestError(_StatusError):
+    """The server refused the request (4xx); nothing on the server changed."""
+
+
+class Unauthorized(MapRequestError):
+    """401: the bearer token is missing or unknown."""
+
+
+class Forbidden(MapRequestError):
+    """403: the token's role does not allow this request."""
+
+
+class Conflict(MapRequestError):
+    """409: the request contradicts the map's state, e.g. a unit's stamp went backwards."""
+
+
+class InvalidRequest(MapRequestError):
+    """400, 413 or 422: a malformed, too large or invalid request; ``detail`` names the field."""
+
+
+class MapServerError(_StatusError):
+    """5xx: the server failed (a bug, by CONTRACT section 2)."""
+
+
+class MapProtocolError(MapClientError):
+    """A successful reply that breaks the contract; ``problem`` says how, ``value`` shows it."""
+
+    def __init__(self, endpoint: str, problem: str, value: Any) -> None:
+        self.problem = problem
+        self.value = value
+        super().__init__(endpoint, f"reply breaks the contract: {problem}, got {_short(value)}")
+
+
+_REQUEST_ERRORS: dict[int, type[MapRequestError]] = {
+    400: InvalidRequest,
+    401: Unauthorized,
+    403: Forbidden,
+    409: Conflict,
+    413: InvalidRequest,
+    422: InvalidRequest,
+}
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    """``repr(value)``, clipped to ``limit`` characters."""
+    return _clip(repr(value), limit)
+
+
+def _clip(text: str, limit: int) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+# ---------------------------------------------------------------------------- replies
+
+
+@dataclass(frozen=True)
+class ScanAck:
+    """A durable scan: ``seq`` (its journal sequence number) and the map's version after it."""
+
+    seq: int
+    map_version: int
+
+
+@dataclass(frozen=True)
+class MapMeta:
+    """``GET /v1/map/meta`` (CONTRACT 2.2).
+
+    resolution [m/cell]; width, height [cells]; origin_x, origin_y [m] (the outer corner of
+    cell (0, 0)), origin_yaw [rad]; frame; stamp [s] (the map's "now", the latest scan
+    stamp; None if the server sends null before any scan); version (bumped on every
+    change). ``sensor_model``, ``decay``, ``inflation`` and ``thresholds`` are the server's
+    settings as sent.
+    """
+
+    resolution: float
+    width: int
+    height: int
+    origin_x: float
+    origin_y: float
+    origin_yaw: float
+    frame: str
+    stamp: float | None
+    version: int
+    sensor_model: dict[str, Any]
+    decay: dict[str, Any]
+    inflation: dict[str, Any]
+    thresholds: dict[str, Any]
+
+    @property
+    def geometry(self) -> GridGeometry:
+        """The grid's size, resolution and origin."""
+        return GridGeometry(self.width, self.height, self.resolution, self.origin_x, self.origin_y)
+
+
+@dataclass(frozen=True, eq=False)
+class Grid:
+    """A fetched grid: ``data`` (height, width), row 0 at the origin's y, read-only.
+
+    int8 OccupancyGrid values for ``occupancy`` (-1 unknown, 0..100 percent), uint8 Nav2
+    costs for ``costmap`` (0 free .. 254 lethal, 255 unknown). ``version`` and ``stamp``
+    [s] are the map's at evaluation (``stamp`` None when the server does not say).
+    """
+
+    data: np.ndarray
+    geometry: GridGeometry
+    version: int
+    stamp: float | None
+
+
+@dataclass(frozen=True)
+class CostmapUpdates:
+    """``GET /v1/costmap/updates``: patches to bring a copy to ``version``.
+
+    ``full`` is True (and ``patches`` None) when the server no longer holds the asked
+    version; the caller then fetches the whole costmap. ``stamp`` [s] is the costmap's
+    stamp if the server sends one (CONTRACT 2.3 does not require it), else None.
+    """
+
+    version: int
+    patches: list[Patch] | None
+    full: bool
+    stamp: float | None = None
+
+
+@dataclass(frozen=True)
+class CellInfo:
+    """One queried point (CONTRACT 2.4).
+
+    x, y [m] as queried; state "free", "occupied", "unknown" or "outside"; p_occ
+    (probability, None when unknown or outside); cost (0..255, None outside);
+    last_observed [s] and age = at - last_observed [s] (None if never observed).
+    """
+
+    x: float
+    y: float
+    state: str
+    p_occ: float | None
+    cost: int | None
+    last_observed: float | None
+    age: float | None
+
+
+@dataclass(frozen=True)
+class SegmentInfo:
+    """One queried segment (CONTRACT 2.5).
+
+    max_cost (0..255, None if no known cell); blocked (a cell on it is lethal or
+    inscribed); unknown_fraction (0..1 of its cells); first_blocked (x, y) [m] or None.
+    """
+
+    max_cost: int | None
+    blocked: bool
+    unknown_fraction: float
+    first_blocked: tuple[float, float] | None
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """``POST /v1/plan`` (CONTRACT 2.6).
+
+    found; path [(x, y) m] from start to goal (empty when not found); length [m]; cost;
+    min_clearance [m]; expanded [nodes]; planning_ms [ms]; map_version planned on.
+    length, cost and min_clearance are None when the server sends null (no path).
+    """
+
+    found: bool
+    path: list[tuple[float, float]]
+    length: float | None
+    cost: float | None
+    min_clearance: float | None
+    expanded: int
+    planning_ms: float
+    map_version: int
+
+
+# ---------------------------------------------------------------------------- client
+
+
+class MapClient:
+    """Typed calls to a map server reached through ``http`` (its ``base_url`` names the server).
+
+    token: bearer token sent as ``Authorization: Bearer TOKEN`` (None: no header).
+    timeout: per-request timeout [s], or an ``httpx.Timeout``; passed explicitly on every
+    request so the injected client's default never applies.
+    """
+
+    def __init__(
+        self, http: httpx.Client, token: str | None = None, timeout: httpx.Timeout | float = 5.0
+    ) -> None:
+        if not http.base_url.host:
+            raise ValueError(
+                f"http client needs a base_url naming the map server, got {str(http.base_url)!r}"
+            )
+        if token is not None and (not isinstance(token, str) or not token.strip()):
+            raise ValueError(f"token must be a non-empty string or None, got {token!r}")
+        if not isinstance(timeout, httpx.Timeout):
+            if isinstance(timeout, bool) or not isinstance(timeout, int | float):
+                raise ValueError(f"timeout must be seconds or an httpx.Timeout, got {timeout!r}")
+            if not (math.isfinite(timeout) and timeout > 0):
+                raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+            timeout = httpx.Timeout(float(timeout))
+        self._http = http
+        self._headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
+        self._timeout = timeout
+
+    # -- scans (2.1)
+
+    def post_scan(self, scan: Scan | Mapping[str, Any]) -> ScanAck:
+        """Send one scan (a ``Scan`` or its CONTRACT 2.1 dict as is); durable once acked."""
+        reply = self._json("POST", "/v1/scans", body=_scan_body(scan))
+        return _ack(reply)
+
+    def post_scans(self, scans: Iterable[Scan | Mapping[str, Any]]) -> list[ScanAck]:
+        """Send scans in one ``POST /v1/scans/batch``; one ack per scan, in order.
+
+        Replies ``{"acks": [{"seq", "map_version"}, ...]}``; an empty batch sends nothing.
+        """
+        bodies = [_scan_body(scan) for scan in scans]
+        if not bodies:
+            return []
+        reply = self._json("POST", "/v1/scans/batch", body={"scans": bodies})
+        return [_ack(ack) for ack in _same_count(reply, "acks", len(bodies))]
+
+    # -- map (2.2, 2.3)
+
+    def map_meta(self) -> MapMeta:
+        """The map's geometry, version, stamp and settings."""
+        r = self._json("GET", "/v1/map/meta")
+        origin = r.child("origin")
+        return MapMeta(
+            resolution=r.get("resolution", float),
+            width=r.get("width", int),
+            height=r.get("height", int),
+            origin_x=origin.get("x", float),
+            origin_y=origin.get("y", float),
+            origin_yaw=origin.get("yaw", float),
+            frame=r.get("frame", str),
+            stamp=r.get("stamp", float, nullable=True),
+            version=r.get("version", int),
+            sensor_model=r.get("sensor_model", dict),
+            decay=r.get("decay", dict),
+            inflation=r.get("inflation", dict),
+            thresholds=r.get("thresholds", dict),
+        )
+
+    def occupancy(self, at: float | None = None) -> Grid:
+        """The OccupancyGrid (int8) evaluated at stamp ``at`` [s] (default: the map's now)."""
+        return self._raw_grid("/v1/map", at, np.int8)
+
+    def costmap(self, at: float | None = None) -> Grid:
+        """The Nav2 costmap (uint8) evaluated at stamp ``at`` [s] (default: the map's now)."""
+        return self._raw_grid("/v1/costmap", at, np.uint8)
+
+    def costmap_updates(self, since: int) -> CostmapUpdates:
+        """Patches of the costmap cells changed after version ``since``."""
+        if isinstance(since, bool) or not isinstance(since, int | np.integer):
+            raise ValueError(f"since must be an integer costmap version, got {since!r}")
+        r = self._json("GET", "/v1/costmap/updates", params={"since": int(since)})
+        version = r.get("version", int)
+        stamp = r.get("stamp", float, nullable=True, required=False)
+        if r.get("full", bool, required=False):
+            return CostmapUpdates(version, None, True, stamp)
+        return CostmapUpdates(version, [_patch(p) for p in r.items("patches")], False, stamp)
+
+    def follow_costmap(self, local: Grid | None) -> Grid:
+        """Bring a costmap fetched by ``costmap()`` (or None) up to the server's latest.
+
+        Applies the patches since ``local.version`` to a copy (``local`` is not changed),
+        or fetches the whole costmap when ``local`` is None or the server answers
+        ``full``; returns ``local`` itself when nothing changed. The result's ``stamp`` is
+        the one the updates reply carries (None if it carries none). ``local`` must be
+        the server's latest at the time (fetched without ``at``).
+        """
+        if local is None:
+            return self.costmap()
+        if local.data.dtype != np.uint8:
+            raise ValueError(f"follow_costmap needs a uint8 costmap, got dtype {local.data.dtype}")
+        updates = self.costmap_updates(local.version)
+        if updates.full or updates.patches is None:
+            return self.costmap()
+        if not updates.patches and updates.version == local.version:
+            return local  # nothing changed: the local grid (immutable) is current
+        costs = local.data.copy()
+        for patch in updates.patches:
+            if patch.x0 + patch.width > costs.shape[1] or patch.y0 + patch.height > costs.shape[0]:
+                raise MapProtocolError(
+                    "GET /v1/costmap/updates",
+                    f"patch exceeds the {costs.shape[1]} x {costs.shape[0]} local grid",
+                    (patch.x0, patch.y0, patch.width, patch.height),
+                )
+            patch.apply_to(costs)
+        costs.flags.writeable = False
+        return Grid(costs, local.geometry, updates.version, updates.stamp)
+
+    # -- queries (2.4, 2.5)
+
+    def query_cells(
+        self, points: Sequence[Sequence[float]] | np.ndarray, at: float | None = None
+    ) -> list[CellInfo]:
+        """State, probability, cost and freshness of the cells at ``points`` [(x, y) m].
+
+        at: stamp [s] to evaluate decay at (default: the map's now).
+        """
+        body: dict[str, Any] = {"points": _rows("points", points, 2)}
+        if at is not None:
+            body["at"] = float(at)
+        reply = self._json("POST", "/v1/query/cells", body=body)
+        cells = _same_count(reply, "cells", len(body["points"]))
+        return [
+            CellInfo(
+                x=c.get("x", float),
+                y=c.get("y", float),
+                state=c.get("state", str),
+                p_occ=c.get("p_occ", float, nullable=True),
+                cost=c.get("cost", int, nullable=True),
+                last_observed=c.get("last_observed", float, nullable=True),
+                age=c.get("age", float, nullable=True),
+            )
+            for c in cells
+        ]
+
+    def query_segments(self, segments: Sequence[Sequence[float]] | np.ndarray) -> list[SegmentInfo]:
+        """Cost, blockage and unknown share along each segment ``(x0, y0, x1, y1)`` [m]."""
+        body = {"segments": _rows("segments", segments, 4)}
+        reply = self._json("POST", "/v1/query/segments", body=body)
+        return [
+            SegmentInfo(
+                max_cost=s.get("max_cost", int, nullable=True),
+                blocked=s.get("blocked", bool),
+                unknown_fraction=s.get("unknown_fraction", float),
+                first_blocked=s.point("first_blocked", nullable=True),
+            )
+            for s in _same_count(reply, "segments", len(body["segments"]))
+        ]
+
+    # -- planning (2.6)
+
+    def plan(
+        self,
+        start: Sequence[float],
+        goal: Sequence[float],
+        algorithm: str = "astar",
+        allow_unknown: bool = True,
+        unit_id: str | None = None,
+    ) -> PlanResult:
+        """A path from ``start`` to ``goal`` [(x, y) m] on the server's costmap.
+
+        algorithm: "astar" or "dijkstra"; allow_unknown: may the path cross unknown cells;
+        unit_id: the asking unit (optional).
+        """
+        body: dict[str, Any] = {
+            "start": _row("start", start, 2),
+            "goal": _row("goal", goal, 2),
+            "algorithm": algorithm,
+            "allow_unknown": bool(allow_unknown),
+        }
+        if unit_id is not None:
+            body["unit_id"] = unit_id
+        r = self._json("POST", "/v1/plan", body=body)
+        return PlanResult(
+            found=r.get("found", bool),
+            path=r.points("path"),
+            length=r.get("length", float, nullable=True),
+            cost=r.get("cost", float, nullable=True),
+            min_clearance=r.get("min_clearance", float, nullable=True),
+            expanded=r.get("expanded", int),
+            planning_ms=r.get("planning_ms", float),
+            map_version=r.get("map_version", int),
+        )
+
+    # -- operations (2.7)
+
+    def healthz(self) -> bool:
+        """True when the server is ready; False on a 5xx or when it cannot be reached.
+
+        A 4xx (e.g. 404: not a map server at this URL) still raises ``MapRequestError``.
+        """
+        try:
+            self._send("GET", "/healthz")
+        except (MapServerUnavailable, MapServerError):
+            return False
+        return True
+
+    def metrics_text(self) -> str:
+        """The Prometheus text exposition of ``GET /metrics``."""
+        return self._send("GET", "/metrics").text
+
+    # -- plumbing
+
+    def _send(
+        self,
+        method: str,
+        path: str,
+        params: Mapping[str, Any] | None = None,
+        body: Any = None,
+    ) -> httpx.Response:
+        """One request with auth and timeout; returns a 2xx response or raises."""
+        endpoint = f"{method} {path}"
+        headers = dict(self._headers)
+        content = None
+        if body is not None:
+            content = json.dumps(body, separators=(",", ":")).encode()
+            headers["Content-Type"] = "application/json"
+        try:
+            response = self._http.request(
+                method, path, params=params, content=content, headers=headers, timeout=self._timeout
+            )
+        except httpx.TransportError as exc:
+            raise MapServerUnavailable(endpoint, exc) from exc
+        status = response.status_code
+        if 200 <= status < 300:
+            return response
+        if 400 <= status < 500:
+            raise _REQUEST_ERRORS.get(status, MapRequestError)(endpoint, status, _detail(response))
+        if status >= 500:
+            raise MapServerError(endpoint, status, _detail(response))
+        raise MapProtocolError(endpoint, "unexpected HTTP status", status)
+
+    def _json(
+        self,
+        method: str,
+        path: str,
+        params: Mapping[str, Any] | None = None,
+        body: Any = None,
+    ) -> _Fields:
+        """A request whose reply is a JSON object."""
+        endpoint = f"{method} {path}"
+        response = self._send(method, path, params, body)
+        try:
+            data = json.loads(response.content)
+        except ValueError:
+            raise MapProtocolError(endpoint, "reply is not JSON", response.text) from None
+        if not isinstance(data, dict):
+            raise MapProtocolError(endpoint, "reply is not a JSON object", data)
+        return _Fields(endpoint, data)
+
+    def _raw_grid(self, path: str, at: float | None, dtype: type[np.generic]) -> Grid:
+        """``GET path?format=raw[&at=]``: bytes plus ``X-Map-*`` headers."""
+        params: dict[str, Any] = {"format": "raw"}
+        if at is not None:
+            params["at"] = float(at)
+        response = self._send("GET", path, params)
+        endpoint = f"GET {path}"
+        header = _Headers(endpoint, response.headers)
+        try:
+            geometry = GridGeometry(
+                width=header.get("X-Map-Width", int),
+                height=header.get("X-Map-Height", int),
+                resolution=header.get("X-Map-Resolution", float),
+                origin_x=header.get("X-Map-Origin-X", float),
+                origin_y=header.get("X-Map-Origin-Y", float),
+            )
+        except ValueError as exc:  # the geometry's own check names the field
+            raise MapProtocolError(
+                endpoint, "X-Map-* headers give no valid grid", str(exc)
+            ) from None
+        body = response.content
+        if len(body) != geometry.size:
+            raise MapProtocolError(
+                endpoint,
+                f"raw body must hold width * height = {geometry.width} * {geometry.height}"
+                f" = {geometry.size} bytes",
+                len(body),
+            )
+        data = np.frombuffer(body, dtype=dtype).reshape(geometry.shape)
+        return Grid(
+            data=data,
+            geometry=geometry,
+            version=header.get("X-Map-Version", int),
+            stamp=header.get("X-Map-Stamp", float, nullable=True),
+        )
+
+
+# ---------------------------------------------------------------------------- parsing
+
+_KINDS: dict[type, str] = {
+    bool: "a boolean",
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    dict: "an object",
+    list: "a list",
+}
+
+
+def _is_kind(value: Any, kind: type) -> bool:
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    return isinstance(value, kind)
+
+
+@dataclass(frozen=True)
+class _Fields:
+    """A JSON object of a reply at ``where`` (e.g. ``cells[2]``); typed field access."""
+
+    endpoint: str
+    data: Mapping[str, Any]
+    where: str = ""
+
+    def _name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def get(self, key: str, kind: type, nullable: bool = False, required: bool = True) -> Any:
+        """Field ``key`` checked to be of ``kind`` (floats returned as float).
+
+        nullable: null is accepted (returned as None); required=False: a missing field
+        is None.
+        """
+        if key not in self.data:
+            if not required:
+                return None
+            raise MapProtocolError(
+                self.endpoint,
+                f"field {self._name(key)!r} is missing (fields present)",
+                sorted(self.data),
+            )
+        value = self.data[key]
+        if value is None and nullable:
+            return None
+        if not _is_kind(value, kind):
+            raise MapProtocolError(
+                self.endpoint, f"field {self._name(key)!r} must be {_KINDS[kind]}", value
+            )
+        return float(value) if kind is float else value
+
+    def child(self, key: str) -> _Fields:
+        """The nested object ``key``."""
+        return _Fields(self.endpoint, self.get(key, dict), self._name(key))
+
+    def items(self, key: str) -> list[_Fields]:
+        """The list of objects ``key``."""
+        values = self.get(key, list)
+        name = self._name(key)
+        for i, value in enumerate(values):
+            if not isinstance(value, dict):
+                raise MapProtocolError(self.endpoint, f"{name}[{i}] must be an object", value)
+        return [_Fields(self.endpoint, v, f"{name}[{i}]") for i, v in enumerate(values)]
+
+    def point(self, key: str, nullable: bool = False) -> tuple[float, float] | None:
+        """The ``[x, y]`` field ``key`` as a tuple [m]."""
+        value = self.get(key, list, nullable=nullable)
+        if value is None:
+            return None
+        return self._pair(value, self._name(key))
+
+    def points(self, key: str) -> list[tuple[float, float]]:
+        """The ``[[x, y], ...]`` field ``key`` as tuples [m]."""
+        name = self._name(key)
+        return [self._pair(value, f"{name}[{i}]") for i, value in enumerate(self.get(key, list))]
+
+    def _pair(self, value: Any, name: str) -> tuple[float, float]:
+        if not (
+            isinstance(value, list) and len(value) == 2 and all(_is_kind(v, float) for v in value)
+        ):
+            raise MapProtocolError(self.endpoint, f"{name} must be [x, y] numbers", value)
+        return (float(value[0]), float(value[1]))
+
+
+@dataclass(frozen=True)
+class _Headers:
+    """Typed access to a raw reply's ``X-Map-*`` headers."""
+
+    endpoint: str
+    headers: httpx.Headers
+
+    def get(self, name: str, kind: type[int] | type[float], nullable: bool = False) -> Any:
+        """Header ``name`` parsed as ``kind``; with nullable, "nan", "null" or "" give None
+        (the server's way of saying "no stamp yet")."""
+        text = self.headers.get(name)
+        if text is None:
+            raise MapProtocolError(self.endpoint, f"header {name} is missing", dict(self.headers))
+        if nullable and text.strip().lower() in ("", "null", "none", "nan"):
+            return None
+        try:
+            return kind(text)
+        except ValueError:
+            expected = "an integer" if kind is int else "a number"
+            raise MapProtocolError(
+                self.endpoint, f"header {name} must be {expected}", text
+            ) from None
+
+
+def _detail(response: httpx.Response) -> Any:
+    """The ``detail`` of an error body ``{"detail": ...}``, else the body text."""
+    try:
+        data = json.loads(response.content)
+    except ValueError:
+        return response.text
+    if isinstance(data, dict) and "detail" in data:
+        return data["detail"]
+    return data
+
+
+def _ack(r: _Fields) -> ScanAck:
+    return ScanAck(seq=r.get("seq", int), map_version=r.get("map_version", int))
+
+
+def _patch(r: _Fields) -> Patch:
+    """A ``{"x0", "y0", "width", "height", "data"}`` patch; data row-major uint8 values."""
+    x0, y0 = r.get("x0", int), r.get("y0", int)
+    width, height = r.get("width", int), r.get("height", int)
+    if x0 < 0 or y0 < 0 or width < 1 or height < 1:
+        raise MapProtocolError(
+            r.endpoint, f"{r.where} needs x0, y0 >= 0 and width, height >= 1", dict(r.data)
+        )
+    values = r.get("data", list)
+    if len(values) != width * height:
+        raise MapProtocolError(
+            r.endpoint,
+            f"{r.where}.data must hold width * height = {width * height} values",
+            len(values),
+        )
+    data = np.array(values)
+    if data.dtype.kind not in "iu" or data.min() < 0 or data.max() > 255:
+        raise MapProtocolError(r.endpoint, f"{r.where}.data must be integers 0..255", values)
+    return Patch(x0, y0, width, height, data.astype(np.uint8).reshape(height, width))
+
+
+def _same_count(reply: _Fields, key: str, sent: int) -> list[_Fields]:
+    """The list of objects ``key``, which must hold one entry per item sent."""
+    items = reply.items(key)
+    if len(items) != sent:
+        raise MapProtocolError(
+            reply.endpoint, f"one answer per item asked ({sent}) in {key!r}", len(items)
+        )
+    return items
+
+
+def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
+    """A scan's CONTRACT 2.1 JSON object; a mapping is sent as is (the server validates)."""
+    if isinstance(scan, Scan):
+        return scan.to_dict()
+    if isinstance(scan, Mapping):
+        return dict(scan)
+    raise TypeError(f"scan must be a Scan or a dict, got {type(scan).__name__}: {_short(scan)}")
+
+
+def _rows(name: str, values: Iterable[Iterable[float]], n: int) -> list[list[float]]:
+    """``values`` as a list of rows of ``n`` floats; ValueError names the bad row."""
+    return [_row(f"{name}[{i}]", row, n) for i, row in enumerate(values)]
+
+
+def _row(name: str, row: Iterable[float], n: int) -> list[float]:
+    """``row`` as a list of ``n`` floats; ValueError names it."""
+    items = list(row) if isinstance(row, Iterable) else [row]
+    if len(items) != n or not all(_is_number(v) for v in items):
+        raise ValueError(f"{name} must be {n} numbers, got {_short(row)}")
+    return [float(v) for v in items]
+
+
+def _is_number(value: Any) -> bool:
+    """A real number (Python or numpy), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)

@@ -1,0 +1,147 @@
+"""Point and segment queries on the belief grid and the costmap (CONTRACT 2.4 and 2.5).
+
+- Cells: for each world point, its state (free / occupied / unknown, or outside the map),
+  occupancy probability (None when unknown, as CONTRACT 2.4 says, including an observed
+  cell whose probability lies between the thresholds), cost, last-observed stamp and age.
+- Segments: for each segment, the highest known cost of the cells it crosses, whether a
+  cell on it is lethal or inscribed (``blocked``), the share of its cells that are unknown
+  (cells off the map count as unknown) and the first blocked cell's centre from its start.
+  Cells are those of the Bresenham line between the end points' cells, the traversal the
+  fusion kernel uses for beams.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from mapserver.belief import BeliefGrid, CellState
+from mapserver.costvalues import INSCRIBED, UNKNOWN
+
+STATE_NAMES = {CellState.FREE: "free", CellState.OCCUPIED: "occupied", CellState.UNKNOWN: "unknown"}
+
+
+@dataclass(frozen=True)
+class CellReport:
+    """One queried point: x, y [m]; state; p_occ; cost (0..255); last_observed, age [s]."""
+
+    x: float
+    y: float
+    state: str
+    p_occ: float | None
+    cost: int | None
+    last_observed: float | None
+    age: float | None
+
+
+@dataclass(frozen=True)
+class SegmentReport:
+    """One queried segment (see the module docstring)."""
+
+    max_cost: int | None
+    blocked: bool
+    unknown_fraction: float
+    first_blocked: tuple[float, float] | None
+
+
+def query_cells(
+    belief: BeliefGrid, costs: np.ndarray, points: Sequence[Sequence[float]], at: float
+) -> list[CellReport]:
+    """Reports for ``points`` [(x, y) m] at stamp ``at`` [s] against ``costs`` (H, W) uint8."""
+    geometry = belief.geometry
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    cols, rows, inside = geometry.points_to_cells(pts)
+    flat = rows[inside] * geometry.width + cols[inside]
+    sample = belief.sample(flat, at)
+    reports: list[CellReport] = []
+    k = 0
+    for i, (x, y) in enumerate(pts.tolist()):
+        if not inside[i]:
+            reports.append(CellReport(x, y, "outside", None, None, None, None))
+            continue
+        t = float(sample.last_observed[k])
+        state = CellState(int(sample.states[k]))
+        reports.append(
+            CellReport(
+                x=x,
+                y=y,
+                state=STATE_NAMES[state],
+                p_occ=None if state is CellState.UNKNOWN else float(sample.p_occ[k]),
+                cost=int(costs[rows[i], cols[i]]),
+                last_observed=None if math.isnan(t) else t,
+                age=None if math.isnan(t) else at - t,
+            )
+        )
+        k += 1
+    return reports
+
+
+def query_segments(
+    belief: BeliefGrid, costs: np.ndarray, segments: Sequence[Sequence[float]]
+) -> list[SegmentReport]:
+    """Reports for ``segments`` [(x0, y0, x1, y1) m] against ``costs`` (H, W) uint8."""
+    g = belief.geometry
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    ends = np.floor((seg - [g.origin_x, g.origin_y] * 2) / g.resolution).astype(np.int64)
+    max_cost, unknown, total, first = _segments_kernel(np.ascontiguousarray(costs), ends)
+    reports = []
+    for i in range(seg.shape[0]):
+        blocked = first[i, 0] >= 0
+        reports.append(
+            SegmentReport(
+                max_cost=None if max_cost[i] < 0 else int(max_cost[i]),
+                blocked=bool(blocked),
+                unknown_fraction=float(unknown[i]) / float(total[i]),
+                first_blocked=g.cell_to_world(int(first[i, 0]), int(first[i, 1]))
+                if blocked
+                else None,
+            )
+        )
+    return reports
+
+
+@njit(cache=True, nogil=True)
+def _segments_kernel(costs, ends):
+    """Per segment of cell ends (c0, r0, c1, r1): max known cost (-1 none), unknown count,
+    cell count, first blocked cell (col, row) or (-1, -1)."""
+    height, width = costs.shape
+    n = ends.shape[0]
+    max_cost = np.full(n, -1, dtype=np.int64)
+    unknown = np.zeros(n, dtype=np.int64)
+    total = np.zeros(n, dtype=np.int64)
+    first = np.full((n, 2), -1, dtype=np.int64)
+    for i in range(n):
+        c, r, c1, r1 = ends[i, 0], ends[i, 1], ends[i, 2], ends[i, 3]
+        dc = abs(c1 - c)
+        dr = abs(r1 - r)
+        sc = 1 if c1 > c else -1
+        sr = 1 if r1 > r else -1
+        err = dc - dr
+        while True:
+            total[i] += 1
+            if 0 <= c < width and 0 <= r < height:
+                v = costs[r, c]
+                if v == UNKNOWN:
+                    unknown[i] += 1
+                else:
+                    if v > max_cost[i]:
+                        max_cost[i] = v
+                    if v >= INSCRIBED and first[i, 0] < 0:
+                        first[i, 0] = c
+                        first[i, 1] = r
+            else:
+                unknown[i] += 1
+            if c == c1 and r == r1:
+                break
+            e2 = 2 * err
+            if e2 > -dr:
+                err -= dr
+                c += sc
+            if e2 < dc:
+                err += dc
+                r += sr
+    return max_cost, unknown, total, first

@@ -1,0 +1,403 @@
+"""The map service: the shared map's state, its one writer and its readers (no HTTP).
+
+State: the belief grid, the layered costmap and the journal, under one lock.
+
+Writes. Scans are validated field by field by the caller (``Scan.from_dict``) and
+submitted; one ingest thread takes them in arrival order, and everything that arrived
+meanwhile is applied as one group (group commit): the state checks (a unit's stamps never
+go backwards, the sensor is on the map), one journal transaction (durable before any
+reply), fusion of each scan, one costmap refresh for the group. A rejected submission
+changes nothing. The map's ``version`` is the journal ``seq`` of the last scan fused, so
+it increases with every accepted scan and is the same after a restart.
+
+Reads take the lock only to copy what they need (a costmap of one version with its
+version and stamp), so a slow reader never stalls ingest.
+
+Durability. Start-up loads the newest snapshot and replays the journal after it: the
+same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots are taken
+every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import math
+import queue
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mapserver.belief import BeliefGrid, CellBox
+from mapserver.costmap import LayeredCostmap, Patch
+from mapserver.journal import Journal, journal_path
+from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
+from mapserver.occupancy import occupancy_percent
+from mapserver.queries import CellReport, SegmentReport, query_cells, query_segments
+from mapserver.scan import Scan
+from mapserver.settings import Settings
+
+MAP_SETTINGS_FILE = "map-settings.json"
+LOCK_FILE = "server.lock"
+MAX_GROUP = 512  # scans applied together at most
+
+
+class IngestError(Exception):
+    """A submission refused as a whole: ``status`` (409, 422, 503) and a ``detail``."""
+
+    def __init__(self, status: int, detail: str) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+
+
+class DataDirError(RuntimeError):
+    """The data directory cannot be used (in use, or written with other map settings)."""
+
+
+@dataclass(frozen=True)
+class Ack:
+    """An accepted scan: its journal ``seq`` and the map version that includes it."""
+
+    seq: int
+    map_version: int
+
+
+@dataclass(frozen=True)
+class GridRead:
+    """A grid copied at one version: data (H, W), the map's version and stamp [s]."""
+
+    data: np.ndarray
+    version: int
+    stamp: float
+
+
+@dataclass
+class _Submission:
+    scans: list[Scan]
+    bodies: list[dict[str, Any]]
+    future: Future
+
+
+class MapService:
+    """The shared map of one data directory. ``close()`` stops it."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.geometry = settings.geometry()
+        self.data_dir = Path(settings.data_dir)
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self._lock_handle = _lock_data_dir(self.data_dir)
+        _check_map_settings(self.data_dir, _map_settings(settings))
+        self.journal = Journal(
+            journal_path(self.data_dir),
+            synchronous=settings.journal.synchronous,
+            keep_snapshots=settings.journal.keep_snapshots,
+        )
+        self.belief = settings.belief_grid(self.geometry)
+        self.version = 0
+        self._restore()
+        static = settings.static_map()
+        layers = [StaticLayer(static)] if static is not None else []
+        inflation = InflationLayer(settings.build_inflation(), self.geometry)
+        layers += [ObstacleLayer(self.belief), inflation]
+        self.costmap = LayeredCostmap(
+            self.geometry,
+            layers,
+            history=settings.journal.history,
+            stamp=self.belief.stamp,
+            version=self.version,
+        )
+        self._unit_stamps = self.journal.unit_stamps()
+        self._lock = threading.Lock()
+        self._queue: queue.Queue[_Submission | None] = queue.Queue()
+        self._since_snapshot = 0
+        self._last_snapshot_time = time.monotonic()
+        self.fusion_seconds = 0.0  # [s] total, for metrics
+        self._closed = False
+        self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
+        self._worker.start()
+
+    # ---------------------------------------------------------------- lifecycle
+    def _restore(self) -> None:
+        """Newest snapshot + the journal after it."""
+        snapshot = self.journal.latest_snapshot()
+        after = 0
+        if snapshot is not None:
+            arrays = snapshot.arrays
+            self.belief.load_state(arrays["log_odds"], arrays["last_observed"], snapshot.stamp)
+            self.belief.scans_fused = int(arrays["scans_fused"])
+            self.version = after = snapshot.seq
+        for seq, body in self.journal.scans_after(after):
+            self.belief.fuse(Scan.from_dict(body, max_beams=self.settings.limits.max_beams))
+            self.version = seq
+
+    def close(self) -> None:
+        """Stop the ingest thread (after what is queued), close the journal, unlock."""
+        if self._closed:
+            return
+        self._closed = True
+        self._queue.put(None)
+        self._worker.join()
+        self.journal.close()
+        self._lock_handle.close()
+
+    # -------------------------------------------------------------------- writes
+    def submit(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> Future:
+        """Queue validated scans (all or none); the future gives ``list[Ack]`` or raises
+        IngestError."""
+        future: Future = Future()
+        if self._closed:
+            future.set_exception(IngestError(503, "the map server is shutting down"))
+        else:
+            self._queue.put(_Submission(scans, bodies, future))
+        return future
+
+    def ingest(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> list[Ack]:
+        """Submit and wait (for callers without an event loop)."""
+        return self.submit(scans, bodies).result()
+
+    def _ingest_loop(self) -> None:
+        while True:
+            first = self._queue.get()
+            if first is None:
+                return
+            group = [first]
+            count = len(first.scans)
+            stop = False
+            while count < MAX_GROUP:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if item is None:
+                    stop = True
+                    break
+                group.append(item)
+                count += len(item.scans)
+            self._apply_group(group)
+            self._snapshot_if_due()
+            if stop:
+                return
+
+    def _apply_group(self, group: list[_Submission]) -> None:
+        accepted: list[_Submission] = []
+        with self._lock:
+            stamps = dict(self._unit_stamps)
+            for sub in group:
+                problem = self._check(sub.scans, stamps)
+                if problem is not None:
+                    sub.future.set_exception(problem)
+                    continue
+                for scan in sub.scans:
+                    stamps[scan.unit_id] = scan.stamp
+                accepted.append(sub)
+            if not accepted:
+                return
+            try:
+                seqs = self.journal.append([b for sub in accepted for b in sub.bodies])
+            except Exception as exc:  # disk full, I/O error: nothing was fused
+                for sub in accepted:
+                    sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
+                return
+            t0 = time.perf_counter()
+            boxes: list[CellBox] = []
+            for sub in accepted:
+                for scan in sub.scans:
+                    boxes.append(self.belief.fuse(scan).box)
+            self.version = seqs[-1]
+            self.costmap.update(self.belief.stamp, boxes, version=self.version)
+            self.fusion_seconds += time.perf_counter() - t0
+            self._unit_stamps = stamps
+            self._since_snapshot += len(seqs)
+        k = 0
+        for sub in accepted:
+            n = len(sub.scans)
+            sub.future.set_result([Ack(seq, self.version) for seq in seqs[k : k + n]])
+            k += n
+
+    def _check(self, scans: list[Scan], stamps: dict[str, float]) -> IngestError | None:
+        """State checks of a submission against the current unit stamps (or None)."""
+        local = dict()
+        for i, scan in enumerate(scans):
+            where = f"scans[{i}]." if len(scans) > 1 else ""
+            last = local.get(scan.unit_id, stamps.get(scan.unit_id, -math.inf))
+            if scan.stamp < last:
+                return IngestError(
+                    409,
+                    f"{where}stamp: unit {scan.unit_id!r} already sent stamp {last}, "
+                    f"stamps must not go backwards, got {scan.stamp}",
+                )
+            local[scan.unit_id] = scan.stamp
+            if not self.geometry.contains_point(scan.pose.x, scan.pose.y):
+                xmin, ymin, xmax, ymax = self.geometry.bounds
+                return IngestError(
+                    422,
+                    f"{where}pose: the sensor must be on the map [{xmin}, {xmax}) x "
+                    f"[{ymin}, {ymax}), got ({scan.pose.x}, {scan.pose.y})",
+                )
+        return None
+
+    def _snapshot_if_due(self) -> None:
+        j = self.settings.journal
+        due = self._since_snapshot >= j.snapshot_every_scans or (
+            self._since_snapshot > 0
+            and time.monotonic() - self._last_snapshot_time >= j.snapshot_every_seconds
+        )
+        if due:
+            self.snapshot()
+
+    def snapshot(self) -> int:
+        """Save a snapshot of the belief now; returns its seq."""
+        with self._lock:
+            arrays = {
+                "log_odds": self.belief.raw_log_odds().copy(),
+                "last_observed": self.belief.last_observed().copy(),
+                "scans_fused": np.array(self.belief.scans_fused),
+            }
+            seq, stamp = self.version, self.belief.stamp
+            self._since_snapshot = 0
+        self.journal.save_snapshot(seq, stamp, seq, arrays)
+        self._last_snapshot_time = time.monotonic()
+        return seq
+
+    # --------------------------------------------------------------------- reads
+    @property
+    def stamp(self) -> float:
+        """The map's "now" [s]: the latest scan stamp (None-like -inf before any scan)."""
+        return self.belief.stamp
+
+    def meta(self) -> dict[str, Any]:
+        """CONTRACT 2.2 map metadata."""
+        g, s = self.geometry, self.settings
+        with self._lock:
+            version, stamp = self.version, self.belief.stamp
+        return {
+            "resolution": g.resolution,
+            "width": g.width,
+            "height": g.height,
+            "origin": {"x": g.origin_x, "y": g.origin_y, "yaw": 0.0},
+            "frame": "map",
+            "stamp": stamp if math.isfinite(stamp) else None,
+            "version": version,
+            "policy": s.policy.value,
+            "sensor_model": s.sensor_model.model_dump(),
+            "decay": s.decay.model_dump(),
+            "inflation": s.inflation.model_dump(),
+            "thresholds": {
+                "occupied": s.sensor_model.occupied_threshold,
+                "free": s.sensor_model.free_threshold,
+            },
+        }
+
+    def costmap_read(self, at: float | None = None) -> GridRead:
+        """The costmap at ``at`` [s] (default: the map's stamp), copied at one version."""
+        with self._lock:
+            if at is None or at == self.costmap.stamp:
+                return GridRead(self.costmap.costs.copy(), self.version, self.costmap.stamp)
+            layers = self._frozen_layers()
+            version = self.version
+        return GridRead(self._build(layers, at), version, at)
+
+    def occupancy_read(self, at: float | None = None) -> GridRead:
+        """OccupancyGrid int8 values (-1 unknown, 0..100) at ``at`` [s]."""
+        with self._lock:
+            belief = self._belief_copy()
+            version = self.version
+        when = belief.stamp if at is None else at
+        return GridRead(occupancy_percent(belief.probability_at(when)), version, when)
+
+    def updates_since(self, version: int) -> tuple[int, float, list[Patch] | None]:
+        """(current version, its stamp [s], patches since ``version`` or None when a full
+        read is due)."""
+        with self._lock:
+            return self.version, self.costmap.stamp, self.costmap.patches_since(version)
+
+    def cells(self, points: list[list[float]], at: float | None = None) -> list[CellReport]:
+        with self._lock:
+            when = self.belief.stamp if at is None else at
+            costs = self.costmap.costs
+            if at is not None and at != self.costmap.stamp:
+                costs = self._build(self._frozen_layers(), at)
+            return query_cells(self.belief, costs, points, when)
+
+    def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
+        with self._lock:
+            return query_segments(self.belief, self.costmap.costs, segments)
+
+    def journal_bytes(self) -> int:
+        return self.journal.size_bytes()
+
+    def _belief_copy(self) -> BeliefGrid:
+        """A copy of the belief (caller holds the lock)."""
+        copy = self.settings.belief_grid(self.geometry)
+        copy.load_state(self.belief.raw_log_odds(), self.belief.last_observed(), self.belief.stamp)
+        return copy
+
+    def _frozen_layers(self) -> list:
+        """Fresh layers over a copy of the belief, for reads at another stamp (lock held)."""
+        belief = self._belief_copy()
+        return [
+            ObstacleLayer(belief) if isinstance(layer, ObstacleLayer) else layer.fresh()
+            for layer in self.costmap.layers
+        ]
+
+    def _build(self, layers: list, at: float) -> np.ndarray:
+        """A from-scratch costmap of ``layers`` at ``at`` [s]."""
+        return LayeredCostmap(self.geometry, layers, history=1, stamp=at).costs
+
+
+def _map_settings(settings: Settings) -> dict[str, Any]:
+    """What a journal's scans mean: replaying them under other values gives another map."""
+    g = settings.geometry()
+    return {
+        "grid": {
+            "width": g.width,
+            "height": g.height,
+            "resolution": g.resolution,
+            "origin_x": g.origin_x,
+            "origin_y": g.origin_y,
+        },
+        "sensor_model": settings.sensor_model.model_dump(),
+        "policy": settings.policy.value,
+        "decay": settings.decay.model_dump(),
+        "max_clearing_range": settings.max_clearing_range,
+    }
+
+
+def _check_map_settings(data_dir: Path, current: dict[str, Any]) -> None:
+    """Record the map settings in a new data dir; refuse a dir written with others."""
+    path = data_dir / MAP_SETTINGS_FILE
+    if not path.exists():
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(current, indent=2))
+        tmp.replace(path)
+        return
+    recorded = json.loads(path.read_text())
+    if recorded != current:
+        diff = sorted(k for k in current if recorded.get(k) != current[k])
+        raise DataDirError(
+            f"data_dir {data_dir} holds a journal made with other map settings "
+            f"({', '.join(diff)} differ; see {path}): use another data_dir or those settings"
+        )
+
+
+def read_map_settings(data_dir: Path) -> dict[str, Any]:
+    """The map settings recorded in a data dir (for ``fleetmap replay``)."""
+    return json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
+
+
+def _lock_data_dir(data_dir: Path):
+    """An exclusive lock on the data dir for this process's lifetime (one writer)."""
+    handle = open(data_dir / LOCK_FILE, "a")  # noqa: SIM115 - held until close()
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise DataDirError(f"data_dir {data_dir} is in use by another map server") from None
+    return handle
