@@ -34,7 +34,7 @@ POLICY_STICKY = 2
 
 
 @njit(cache=True, nogil=True)
-def _clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax):
+def clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax):
     """Liang-Barsky clip of segment (x0,y0)-(x1,y1) to the box; returns (ok, t0, t1)."""
     t0 = 0.0
     t1 = 1.0
@@ -68,7 +68,7 @@ def _clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax):
 
 
 @njit(cache=True, nogil=True)
-def _cell_of(v, origin, inv_res, n):
+def cell_of(v, origin, inv_res, n):
     """Cell index along one axis of coordinate v [m], clamped into [0, n - 1]."""
     c = int(math.floor((v - origin) * inv_res))
     if c < 0:
@@ -180,15 +180,15 @@ def mark_scan(
         a = sensor_yaw + angle_min + i * angle_increment
         ex = sensor_x + length * math.cos(a)
         ey = sensor_y + length * math.sin(a)
-        ok, t0, t1 = _clip_segment(sensor_x, sensor_y, ex, ey, xmin, ymin, xmax, ymax)
+        ok, t0, t1 = clip_segment(sensor_x, sensor_y, ex, ey, xmin, ymin, xmax, ymax)
         if not ok:
             continue
         dx = ex - sensor_x
         dy = ey - sensor_y
-        c0 = _cell_of(sensor_x + t0 * dx, origin_x, inv_res, width)
-        r0 = _cell_of(sensor_y + t0 * dy, origin_y, inv_res, height)
-        c1 = _cell_of(sensor_x + t1 * dx, origin_x, inv_res, width)
-        r1 = _cell_of(sensor_y + t1 * dy, origin_y, inv_res, height)
+        c0 = cell_of(sensor_x + t0 * dx, origin_x, inv_res, width)
+        r0 = cell_of(sensor_y + t0 * dy, origin_y, inv_res, height)
+        c1 = cell_of(sensor_x + t1 * dx, origin_x, inv_res, width)
+        r1 = cell_of(sensor_y + t1 * dy, origin_y, inv_res, height)
         # A return whose endpoint is on the map stops before its own (HIT) cell.
         endpoint_on_map = is_return and t1 >= 1.0
         n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map)

@@ -82,9 +82,8 @@ class GridGeometry:
 
     def contains_point(self, x: float, y: float) -> bool:
         """True when world point (x, y) [m] lies on the grid (NaN is never on it)."""
-        if not (math.isfinite(x) and math.isfinite(y)):
-            return False
-        return self.contains_cell(*self.world_to_cell(x, y))
+        xmin, ymin, xmax, ymax = self.bounds
+        return xmin <= x < xmax and ymin <= y < ymax  # False for NaN; no overflow for 1e308
 
     def world_to_cell_checked(self, x: float, y: float) -> tuple[int, int]:
         """(col, row) of world point (x, y) [m]; raises OutsideMapError off the grid."""
@@ -103,16 +102,21 @@ class GridGeometry:
         """Vectorised world -> cell for an (n, 2) array of points [m].
 
         Returns (cols, rows, inside): int64 cell coordinates and a boolean mask of the
-        points that lie on the grid (non-finite points are outside; their cells are -1).
+        points that lie on the grid; points off it (or not finite) get cells -1.
         """
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        finite = np.isfinite(pts).all(axis=1)
-        safe = np.where(finite[:, None], pts, 0.0)
-        cols = np.floor((safe[:, 0] - self.origin_x) / self.resolution).astype(np.int64)
-        rows = np.floor((safe[:, 1] - self.origin_y) / self.resolution).astype(np.int64)
-        inside = finite & (cols >= 0) & (cols < self.width) & (rows >= 0) & (rows < self.height)
-        cols[~finite] = -1
-        rows[~finite] = -1
+        xmin, ymin, xmax, ymax = self.bounds
+        with np.errstate(invalid="ignore"):
+            inside = (
+                (pts[:, 0] >= xmin) & (pts[:, 0] < xmax) & (pts[:, 1] >= ymin) & (pts[:, 1] < ymax)
+            )
+        cols = np.full(len(pts), -1, dtype=np.int64)
+        rows = np.full(len(pts), -1, dtype=np.int64)
+        cols[inside] = np.floor((pts[inside, 0] - self.origin_x) / self.resolution)
+        rows[inside] = np.floor((pts[inside, 1] - self.origin_y) / self.resolution)
+        # A point a rounding error below the far edge still belongs to the last cell.
+        np.minimum(cols, self.width - 1, out=cols)
+        np.minimum(rows, self.height - 1, out=rows)
         return cols, rows, inside
 
     def index(self, col: int, row: int) -> int:

@@ -21,6 +21,7 @@ from numba import njit
 
 from mapserver.belief import BeliefGrid, CellState
 from mapserver.costvalues import INSCRIBED, UNKNOWN
+from mapserver.fusion_kernel import cell_of, clip_segment
 
 STATE_NAMES = {CellState.FREE: "free", CellState.OCCUPIED: "occupied", CellState.UNKNOWN: "unknown"}
 
@@ -86,16 +87,36 @@ def query_segments(
     """Reports for ``segments`` [(x0, y0, x1, y1) m] against ``costs`` (H, W) uint8."""
     g = belief.geometry
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    ends = np.floor((seg - [g.origin_x, g.origin_y] * 2) / g.resolution).astype(np.int64)
-    max_cost, unknown, total, first = _segments_kernel(np.ascontiguousarray(costs), ends)
+    xmin, ymin, xmax, ymax = g.bounds
+    inside_ends = np.zeros((seg.shape[0], 4), dtype=np.int64)
+    on_map = np.zeros(seg.shape[0], dtype=bool)
+    total = np.ones(seg.shape[0])  # cells of the whole segment, on the map or off it
+    for i, (x0, y0, x1, y1) in enumerate(seg.tolist()):
+        span = max(abs(x1 - x0), abs(y1 - y0)) / g.resolution
+        total[i] = math.floor(span) + 1.0 if math.isfinite(span) else math.inf
+        ok, t0, t1 = clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax)
+        if ok:
+            on_map[i] = True
+            dx, dy, inv = x1 - x0, y1 - y0, 1.0 / g.resolution
+            inside_ends[i] = [
+                cell_of(x0 + t0 * dx, g.origin_x, inv, g.width),
+                cell_of(y0 + t0 * dy, g.origin_y, inv, g.height),
+                cell_of(x0 + t1 * dx, g.origin_x, inv, g.width),
+                cell_of(y0 + t1 * dy, g.origin_y, inv, g.height),
+            ]
+    max_cost, unknown, count, first = _segments_kernel(np.ascontiguousarray(costs), inside_ends)
     reports = []
     for i in range(seg.shape[0]):
-        blocked = first[i, 0] >= 0
+        inside_cells = count[i] if on_map[i] else 0
+        off_map = max(total[i] - inside_cells, 0.0)
+        blocked = on_map[i] and first[i, 0] >= 0
+        known_max = max_cost[i] if on_map[i] else -1
+        unknown_cells = (unknown[i] if on_map[i] else 0) + off_map
         reports.append(
             SegmentReport(
-                max_cost=None if max_cost[i] < 0 else int(max_cost[i]),
+                max_cost=None if known_max < 0 else int(known_max),
                 blocked=bool(blocked),
-                unknown_fraction=float(unknown[i]) / float(total[i]),
+                unknown_fraction=_fraction(unknown_cells, max(total[i], inside_cells)),
                 first_blocked=g.cell_to_world(int(first[i, 0]), int(first[i, 1]))
                 if blocked
                 else None,
@@ -104,11 +125,15 @@ def query_segments(
     return reports
 
 
+def _fraction(part: float, whole: float) -> float:
+    """part / whole in [0, 1]; a segment too long to count cells is all unknown."""
+    return 1.0 if not math.isfinite(whole) else min(1.0, float(part) / float(whole))
+
+
 @njit(cache=True, nogil=True)
 def _segments_kernel(costs, ends):
-    """Per segment of cell ends (c0, r0, c1, r1): max known cost (-1 none), unknown count,
-    cell count, first blocked cell (col, row) or (-1, -1)."""
-    height, width = costs.shape
+    """Per segment of on-map cell ends (c0, r0, c1, r1): max known cost (-1 none), unknown
+    count, cell count, first blocked cell (col, row) or (-1, -1)."""
     n = ends.shape[0]
     max_cost = np.full(n, -1, dtype=np.int64)
     unknown = np.zeros(n, dtype=np.int64)
@@ -123,18 +148,15 @@ def _segments_kernel(costs, ends):
         err = dc - dr
         while True:
             total[i] += 1
-            if 0 <= c < width and 0 <= r < height:
-                v = costs[r, c]
-                if v == UNKNOWN:
-                    unknown[i] += 1
-                else:
-                    if v > max_cost[i]:
-                        max_cost[i] = v
-                    if v >= INSCRIBED and first[i, 0] < 0:
-                        first[i, 0] = c
-                        first[i, 1] = r
-            else:
+            v = costs[r, c]
+            if v == UNKNOWN:
                 unknown[i] += 1
+            else:
+                if v > max_cost[i]:
+                    max_cost[i] = v
+                if v >= INSCRIBED and first[i, 0] < 0:
+                    first[i, 0] = c
+                    first[i, 1] = r
             if c == c1 and r == r1:
                 break
             e2 = 2 * err

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import logging
 import math
 import queue
 import threading
@@ -41,6 +42,8 @@ from mapserver.occupancy import occupancy_percent
 from mapserver.queries import CellReport, SegmentReport, query_cells, query_segments
 from mapserver.scan import Scan
 from mapserver.settings import Settings
+
+logger = logging.getLogger(__name__)
 
 MAP_SETTINGS_FILE = "map-settings.json"
 LOCK_FILE = "server.lock"
@@ -180,8 +183,14 @@ class MapService:
                     break
                 group.append(item)
                 count += len(item.scans)
-            self._apply_group(group)
-            self._snapshot_if_due()
+            try:
+                self._apply_group(group)
+                self._snapshot_if_due()
+            except Exception as exc:  # a bug: answer 500 rather than leave callers waiting
+                logger.exception("ingest failed")
+                for sub in group:
+                    if not sub.future.done():
+                        sub.future.set_exception(exc)
             if stop:
                 return
 

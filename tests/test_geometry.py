@@ -20,7 +20,8 @@ def test_world_to_cell_uses_outer_corner_origin_and_bottom_row_zero():
 def test_checked_conversion_rejects_points_off_the_map():
     g = GridGeometry(10, 5, 0.5)
     assert g.world_to_cell_checked(4.99, 2.49) == (9, 4)
-    for x, y in [(5.0, 1.0), (-0.01, 1.0), (1.0, 2.5), (math.nan, 1.0), (math.inf, 0.0)]:
+    outside = [(5.0, 1.0), (-0.01, 1.0), (1.0, 2.5), (math.nan, 1.0), (math.inf, 0.0), (1e308, 0)]
+    for x, y in outside:
         with pytest.raises(OutsideMapError, match="outside the map"):
             g.world_to_cell_checked(x, y)
 
