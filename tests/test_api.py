@@ -209,4 +209,3 @@ def test_health_and_metrics(open_client):
     assert "fleetmap_scans_fused_total 1.0" in text
     assert "fleetmap_journal_bytes" in text and "fleetmap_request_seconds_bucket" in text
     assert open_client.get("/openapi.json").json()["paths"]["/v1/scans"]["post"]
-

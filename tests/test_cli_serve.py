@@ -1,0 +1,58 @@
+"""``fleetmap serve`` refusals and ``fleetmap replay`` from a server's journal."""
+
+import json
+
+import numpy as np
+from fastapi.testclient import TestClient
+from server_helpers import scan_body, small_settings
+
+from mapserver.api.app import create_app
+from scenarios.cli import main
+
+
+def test_an_open_server_refuses_to_bind_beyond_loopback(tmp_path, capsys):
+    code = main(["serve", "--host", "0.0.0.0", "--data-dir", str(tmp_path / "d")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "host" in err and "loopback" in err
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_bad_config_value_names_the_field(tmp_path, capsys):
+    config = tmp_path / "server.yaml"
+    config.write_text("sensor_model:\n  p_hit: 0.4\n")
+    assert main(["serve", "--config", str(config), "--data-dir", str(tmp_path / "d")]) == 2
+    assert "sensor_model.p_hit" in capsys.readouterr().err
+
+
+def test_a_data_dir_made_with_other_map_settings_is_refused(tmp_path, capsys):
+    data = tmp_path / "d"
+    create_app(small_settings(data)).state.service.close()
+    config = tmp_path / "server.yaml"
+    config.write_text("grid:\n  width: 300\n  height: 100\n  resolution: 0.1\n")
+    assert main(["serve", "--config", str(config), "--data-dir", str(data)]) == 2
+    assert "other map settings" in capsys.readouterr().err
+
+
+def test_replay_rebuilds_the_servers_map_from_its_journal(tmp_path, capsys):
+    data = tmp_path / "d"
+    app = create_app(small_settings(data, policy="sticky"))
+    with TestClient(app) as client:
+        for i in range(5):
+            client.post("/v1/scans", json=scan_body(stamp=float(i), x=4.0 + i))
+        served = np.frombuffer(client.get("/v1/map?format=raw").content, np.int8)
+    assert main(["replay", str(data), "--out", str(tmp_path / "all"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["scans"] == 5
+    logodds = np.load(tmp_path / "all" / "logodds.npy")
+    probability = 1 / (1 + np.exp(-logodds.astype(np.float64)))
+    observed = served >= 0
+    assert np.array_equal(np.floor(probability[observed.reshape(100, 200)] * 100 + 0.5),
+                          served[observed])  # fmt: skip
+    assert main(["replay", str(data / "journal.sqlite3"), "--until", "1.5",
+                 "--out", str(tmp_path / "early"), "--json"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["scans"] == 2
+
+
+def test_replay_of_something_else_is_a_clear_error(tmp_path, capsys):
+    assert main(["replay", str(tmp_path)]) == 2
+    assert "not a map server's settings" in capsys.readouterr().err
