@@ -63,6 +63,9 @@ def run_serve(args: argparse.Namespace) -> int:
             f"and bound to loopback ({settings.host}) only",
             file=sys.stderr,
         )
+    # The ingest thread fuses in numba with the GIL released; a short switch interval lets
+    # it take the GIL back promptly from the busy event loop (Python's default is 5 ms).
+    sys.setswitchinterval(0.0005)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning")
     return 0
 

@@ -333,3 +333,52 @@ def faded_log_odds(
             )
         out[i] = value
     return out
+
+
+@njit(cache=True, nogil=True)
+def fuse_batch(
+    log_odds,
+    last_observed,
+    marks,
+    touched,
+    fade_cache,
+    width,
+    height,
+    origin_x,
+    origin_y,
+    resolution,
+    ranges,
+    offsets,
+    scan_params,
+    l_hit,
+    l_miss,
+    l0,
+    clamp_min,
+    clamp_max,
+    policy,
+    half_life_occupied,
+    half_life_free,
+    boxes,
+    cells,
+):
+    """Fuse scans one after the other in one call (the GIL is released once for all).
+
+    ranges: all scans' ranges [m] concatenated; scan k's are ranges[offsets[k]:offsets[k+1]].
+    scan_params: float64 (n, 11) per scan: sensor x, y [m], yaw [rad], angle_min,
+    angle_increment [rad], range_min, range_max, clearing_range [m], stamp [s], pose
+    variances xy [m^2] and yaw [rad^2]. boxes (n, 4) and cells (n,) receive each scan's
+    bounding box and number of cells updated.
+    """
+    for k in range(offsets.shape[0] - 1):
+        p = scan_params[k]
+        n = mark_scan(
+            marks, touched, width, height, origin_x, origin_y, resolution,
+            p[0], p[1], p[2], p[3], p[4], ranges[offsets[k]:offsets[k + 1]],
+            p[5], p[6], p[7], boxes[k],
+        )  # fmt: skip
+        apply_marks(
+            log_odds, last_observed, marks, touched, n, width, origin_x, origin_y, resolution,
+            p[0], p[1], p[8], p[9], p[10], l_hit, l_miss, l0, clamp_min, clamp_max, policy,
+            half_life_occupied, half_life_free, fade_cache,
+        )  # fmt: skip
+        cells[k] = n

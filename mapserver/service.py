@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.belief import BeliefGrid, CellBox
+from mapserver.belief import BeliefGrid
 from mapserver.costmap import LayeredCostmap, Patch
 from mapserver.journal import Journal, journal_path
 from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
@@ -84,6 +84,7 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     bodies: list[dict[str, Any]]
+    texts: list[str | None]
     future: Future
 
 
@@ -121,6 +122,7 @@ class MapService:
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
+        self._snapshotter: threading.Thread | None = None
         self.fusion_seconds = 0.0  # [s] total, for metrics
         self._closed = False
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
@@ -147,18 +149,26 @@ class MapService:
         self._closed = True
         self._queue.put(None)
         self._worker.join()
+        if self._snapshotter is not None:
+            self._snapshotter.join()
         self.journal.close()
         self._lock_handle.close()
 
     # -------------------------------------------------------------------- writes
-    def submit(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> Future:
-        """Queue validated scans (all or none); the future gives ``list[Ack]`` or raises
-        IngestError."""
+    def submit(
+        self,
+        scans: list[Scan],
+        bodies: list[dict[str, Any]],
+        texts: list[str | None] | None = None,
+    ) -> Future:
+        """Queue validated scans (all or none) with their JSON objects (and, optionally,
+        the JSON texts they were parsed from, journaled as is); the future gives
+        ``list[Ack]`` or raises IngestError."""
         future: Future = Future()
         if self._closed:
             future.set_exception(IngestError(503, "the map server is shutting down"))
         else:
-            self._queue.put(_Submission(scans, bodies, future))
+            self._queue.put(_Submission(scans, bodies, texts or [None] * len(scans), future))
         return future
 
     def ingest(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> list[Ack]:
@@ -209,16 +219,17 @@ class MapService:
             if not accepted:
                 return
             try:
-                seqs = self.journal.append([b for sub in accepted for b in sub.bodies])
+                seqs = self.journal.append(
+                    [b for sub in accepted for b in sub.bodies],
+                    [t for sub in accepted for t in sub.texts],
+                )
             except Exception as exc:  # disk full, I/O error: nothing was fused
                 for sub in accepted:
                     sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
                 return
             t0 = time.perf_counter()
-            boxes: list[CellBox] = []
-            for sub in accepted:
-                for scan in sub.scans:
-                    boxes.append(self.belief.fuse(scan).box)
+            results = self.belief.fuse_many([scan for sub in accepted for scan in sub.scans])
+            boxes = [r.box for r in results]
             self.version = seqs[-1]
             self.costmap.update(self.belief.stamp, boxes, version=self.version)
             self.fusion_seconds += time.perf_counter() - t0
@@ -253,27 +264,43 @@ class MapService:
         return None
 
     def _snapshot_if_due(self) -> None:
+        """Copy the belief and save it on a background thread, at most one at a time."""
         j = self.settings.journal
         due = self._since_snapshot >= j.snapshot_every_scans or (
             self._since_snapshot > 0
             and time.monotonic() - self._last_snapshot_time >= j.snapshot_every_seconds
         )
-        if due:
-            self.snapshot()
+        if due and not (self._snapshotter and self._snapshotter.is_alive()):
+            taken = self._take_snapshot()
+            self._snapshotter = threading.Thread(
+                target=self._save_snapshot, args=taken, name="map-snapshot", daemon=True
+            )
+            self._snapshotter.start()
 
     def snapshot(self) -> int:
-        """Save a snapshot of the belief now; returns its seq."""
+        """Save a snapshot of the belief now (waiting for it); returns its seq."""
+        if self._snapshotter is not None:
+            self._snapshotter.join()
+        taken = self._take_snapshot()
+        self._save_snapshot(*taken)
+        return taken[0]
+
+    def _take_snapshot(self) -> tuple[int, float, dict[str, np.ndarray]]:
         with self._lock:
             arrays = {
                 "log_odds": self.belief.raw_log_odds().copy(),
                 "last_observed": self.belief.last_observed().copy(),
                 "scans_fused": np.array(self.belief.scans_fused),
             }
-            seq, stamp = self.version, self.belief.stamp
             self._since_snapshot = 0
-        self.journal.save_snapshot(seq, stamp, seq, arrays)
-        self._last_snapshot_time = time.monotonic()
-        return seq
+            self._last_snapshot_time = time.monotonic()
+            return self.version, self.belief.stamp, arrays
+
+    def _save_snapshot(self, seq: int, stamp: float, arrays: dict[str, np.ndarray]) -> None:
+        try:
+            self.journal.save_snapshot(seq, stamp, seq, arrays)
+        except Exception:  # the journal still holds every scan: start-up replays more
+            logger.exception("snapshot at seq %d failed", seq)
 
     # --------------------------------------------------------------------- reads
     @property
