@@ -24,6 +24,7 @@ import numpy as np
 
 MAP_FRAME = "map"
 DEFAULT_MAX_BEAMS = 16384
+FULL_TURN = 2 * math.pi + 1e-9  # [rad] a scan's beams span at most one turn
 
 # Beam classes, as returned by ``classify_ranges``.
 BEAM_INVALID = 0
@@ -141,6 +142,13 @@ class Scan:
         if not range_max > range_min:
             raise ScanError("range_max", range_max, f"must be greater than range_min ({range_min})")
         ranges = _ranges(data.get("ranges"), max_beams)
+        if (len(ranges) - 1) * angle_increment > FULL_TURN:
+            raise ScanError(
+                "ranges",
+                f"<{len(ranges)} beams>",
+                f"must fit in one turn at angle_increment {angle_increment} rad "
+                f"(at most {int(FULL_TURN / angle_increment) + 1} beams)",
+            )
         return cls(
             unit_id=unit_id,
             stamp=stamp,

@@ -9,6 +9,7 @@ from fastapi.testclient import TestClient
 from server_helpers import scan_body, small_settings
 
 from mapserver.api.app import create_app
+from mapserver.client import MapClient
 from mapserver.costvalues import LETHAL, UNKNOWN
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
@@ -74,6 +75,7 @@ BAD_SCANS = [
     ("sensor off the map", lambda b: b["pose"].update(x=25.0), 422, "pose"),
     ("backwards stamp", lambda b: b.update(stamp=0.5), 409, "stamp"),
     ("too many beams", lambda b: b.update(ranges=[1.0] * 20000), 422, "ranges"),
+    ("ranges past one turn", lambda b: b.update(ranges=[1.0] * 700), 422, "ranges"),
 ]
 
 
@@ -209,3 +211,14 @@ def test_health_and_metrics(open_client):
     assert "fleetmap_scans_fused_total 1.0" in text
     assert "fleetmap_journal_bytes" in text and "fleetmap_request_seconds_bucket" in text
     assert open_client.get("/openapi.json").json()["paths"]["/v1/scans"]["post"]
+
+
+def test_patches_followed_by_a_client_reproduce_the_costmap(open_client):
+    client = MapClient(open_client)
+    local = client.costmap()
+    for i in range(6):
+        open_client.post("/v1/scans", json=scan_body(stamp=float(i), x=3.0 + 2 * i, y=4.0 + i / 2))
+        local = client.follow_costmap(local)
+        full = client.costmap()
+        assert local.version == full.version == i + 1
+        assert np.array_equal(local.data, full.data)

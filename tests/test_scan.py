@@ -134,3 +134,11 @@ def test_scan_lines_name_the_line_and_field():
     assert info.value.line == 3 and info.value.field == "pose.x"
     with pytest.raises(ScanFileError, match=r":1: json: not valid JSON"):
         list(parse_scan_lines(["{oops"], "scans.jsonl"))
+
+
+def test_ranges_that_span_more_than_one_turn_are_refused():
+    data = {**valid(), "angle_increment": 0.1, "ranges": [1.0] * 64}  # 63 steps = 6.3 rad
+    with pytest.raises(ScanError, match="ranges: must fit in one turn") as info:
+        Scan.from_dict(data)
+    assert info.value.field == "ranges"
+    assert Scan.from_dict({**data, "ranges": [1.0] * 63}).beam_count == 63
