@@ -42,6 +42,7 @@ from mapserver.occupancy import occupancy_percent
 from mapserver.queries import CellReport, SegmentReport, query_cells, query_segments
 from mapserver.scan import Scan
 from mapserver.settings import Settings
+from planner.grid_search import GridPlanner, PlanResult
 
 logger = logging.getLogger(__name__)
 
@@ -123,6 +124,8 @@ class MapService:
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
         self._snapshotter: threading.Thread | None = None
+        self._planner: GridPlanner | None = None  # created on the first plan
+        self._planner_lock = threading.Lock()
         self.fusion_seconds = 0.0  # [s] total, for metrics
         self._closed = False
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
@@ -365,6 +368,23 @@ class MapService:
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
         with self._lock:
             return query_segments(self.belief, self.costmap.costs, segments)
+
+    def plan(
+        self,
+        start: tuple[float, float],
+        goal: tuple[float, float],
+        algorithm: str = "astar",
+        allow_unknown: bool = True,
+    ) -> tuple[PlanResult, int]:
+        """A plan on the current costmap and that costmap's version (one planner at a
+        time: its search buffers are the grid's size)."""
+        read = self.costmap_read()
+        with self._planner_lock:
+            if self._planner is None:
+                self._planner = GridPlanner(self.geometry)
+            return self._planner.plan(
+                read.data, start, goal, algorithm, allow_unknown
+            ), read.version
 
     def journal_bytes(self) -> int:
         return self.journal.size_bytes()

@@ -7,6 +7,7 @@ import sys
 
 from mapserver.cli_map import add_map_parser
 from mapserver.cli_serve import add_serve_parsers
+from planner.cli_plan import add_plan_parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -17,6 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_map_parser(sub)
     add_serve_parsers(sub)
+    add_plan_parser(sub)
     return parser
 
 

@@ -222,3 +222,28 @@ def test_patches_followed_by_a_client_reproduce_the_costmap(open_client):
         full = client.costmap()
         assert local.version == full.version == i + 1
         assert np.array_equal(local.data, full.data)
+
+
+def test_plan_finds_a_path_around_an_obstacle_on_the_current_costmap(open_client):
+    for i in range(3):  # a wall of returns at x = 8 m seen from (5, 5)
+        open_client.post("/v1/scans", json=scan_body(stamp=float(i)))
+    reply = open_client.post(
+        "/v1/plan", json={"start": [5.0, 5.0], "goal": [6.5, 5.0], "algorithm": "dijkstra"}
+    )
+    plan = reply.json()
+    assert reply.status_code == 200 and plan["found"] is True
+    assert plan["path"][0] == pytest.approx([5.05, 5.05]) and plan["map_version"] == 3
+    assert plan["length"] == pytest.approx(1.5, abs=0.01) and plan["min_clearance"] > 0.5
+    through_wall = open_client.post(
+        "/v1/plan", json={"start": [5.0, 5.0], "goal": [12.0, 5.0], "allow_unknown": False}
+    ).json()
+    assert through_wall["found"] is False
+
+
+def test_plan_refuses_points_off_the_map_naming_the_field(open_client):
+    reply = open_client.post("/v1/plan", json={"start": [5.0, 5.0], "goal": [50.0, 5.0]})
+    assert reply.status_code == 422 and reply.json()["detail"].startswith(
+        "goal: must be on the map"
+    )
+    reply = open_client.post("/v1/plan", json={"start": [5.0], "goal": [6.0, 5.0]})
+    assert reply.status_code == 422 and reply.json()["detail"].startswith("start")

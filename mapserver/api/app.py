@@ -17,7 +17,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from mapserver.api import routes_maps, routes_ops, routes_query, routes_scans
+from mapserver.api import routes_maps, routes_ops, routes_plan, routes_query, routes_scans
 from mapserver.api.metrics import ServerMetrics
 from mapserver.api.schemas import ScanBatchIn, ScanIn
 from mapserver.service import MapService
@@ -43,7 +43,7 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.service = service
     app.state.metrics = ServerMetrics(service)
     app.state.token_roles = settings.token_roles()
-    for router in (routes_scans, routes_maps, routes_query, routes_ops):
+    for router in (routes_scans, routes_maps, routes_query, routes_plan, routes_ops):
         app.include_router(router.router)
     _add_body_schemas(app)
     app.add_exception_handler(RequestValidationError, _validation_error)

@@ -142,3 +142,22 @@ class SegmentsOut(BaseModel):
 class Health(BaseModel):
     status: Literal["ok"]
     version: int
+
+
+class PlanIn(BaseModel):
+    start: tuple[Finite, Finite] = Field(description="[x, y] [m]")
+    goal: tuple[Finite, Finite] = Field(description="[x, y] [m]")
+    algorithm: Literal["astar", "dijkstra"] = "astar"
+    allow_unknown: bool = True
+    unit_id: str | None = Field(None, description="who asks (for logs)")
+
+
+class PlanOut(BaseModel):
+    found: bool
+    path: list[list[float]] = Field(description="[[x, y], ...] cell centres [m]")
+    length: float = Field(description="[m] along the path")
+    cost: float = Field(description="sum of step length [m] x NavFn cell weight")
+    min_clearance: float | None = Field(description="[m] to the nearest lethal cell")
+    expanded: int
+    planning_ms: float
+    map_version: int

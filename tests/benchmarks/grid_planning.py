@@ -1,0 +1,118 @@
+"""Grid planning benchmark: A* and Dijkstra corner to corner on a 2000 x 2000 costmap.
+
+Run: ``python tests/benchmarks/grid_planning.py [--json]``
+
+The costmap is the inflation benchmark's warehouse (``tests/benchmarks/inflation.py``:
+walls, rack rows, totes; 0.05 m cells) inflated with the Nav2 defaults. Printed: A* and
+Dijkstra from (2.5, 2.5) to (97.5, 97.5) m (time [ms], nodes expanded, path length [m]);
+and, in the same run, networkx ``astar_path`` on a 300 x 300 crop of the same costmap
+(the same weights and octile heuristic) against ``GridPlanner`` on that crop, with the
+speed ratio. ``--json`` prints the figures as one JSON object last. Measures only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import networkx as nx
+import numpy as np
+from inflation import warehouse
+
+from mapserver.costvalues import LETHAL
+from mapserver.geometry import GridGeometry
+from mapserver.inflation import InflationParams, Inflator
+from planner.grid_search import GridPlanner, cell_weights
+
+RES = 0.05
+
+
+def costmap() -> np.ndarray:
+    lethal = warehouse(seed=0)
+    costs = Inflator(InflationParams(), RES).inflate(lethal)
+    costs[lethal] = LETHAL
+    return costs
+
+
+def grid_graph(costs: np.ndarray) -> nx.DiGraph:
+    """The planner's 8-connected graph (no corner cutting) as networkx edges."""
+    weights = cell_weights(True)
+    h, w = costs.shape
+    graph = nx.DiGraph()
+    for r in range(h):
+        for c in range(w):
+            if weights[costs[r, c]] == np.inf:
+                continue
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    rr, cc = r + dr, c + dc
+                    if (dr, dc) == (0, 0) or not (0 <= rr < h and 0 <= cc < w):
+                        continue
+                    if weights[costs[rr, cc]] == np.inf:
+                        continue
+                    if dr and dc and np.inf in (weights[costs[r, cc]], weights[costs[rr, c]]):
+                        continue
+                    step = RES * (math.sqrt(2) if dr and dc else 1.0)
+                    graph.add_edge((r, c), (rr, cc), weight=step * weights[costs[rr, cc]])
+    return graph
+
+
+def octile(a: tuple[int, int], b: tuple[int, int]) -> float:
+    dr, dc = abs(a[0] - b[0]), abs(a[1] - b[1])
+    return RES * (max(dr, dc) - min(dr, dc) + math.sqrt(2) * min(dr, dc))
+
+
+def free_cell_near(costs: np.ndarray, k: int) -> tuple[int, int]:
+    """The free cell (row, col) nearest to (k, k) along the diagonal."""
+    for d in range(costs.shape[0]):
+        for r, c in ((k + d, k + d), (k - d, k - d)):
+            if 0 <= r < costs.shape[0] and 0 <= c < costs.shape[1] and costs[r, c] == 0:
+                return r, c
+    raise ValueError("no free cell on the diagonal")
+
+
+def best_of(runs: int, fn) -> tuple[float, object]:
+    best, result = math.inf, None
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        result = fn()
+        best = min(best, (time.perf_counter() - t0) * 1e3)
+    return best, result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    costs = costmap()
+    planner = GridPlanner(GridGeometry(2000, 2000, RES))
+    planner.plan(costs, (2.5, 2.5), (3.0, 3.0))  # JIT and first-touch of the buffers
+    figures: dict[str, float] = {}
+    for algorithm in ("astar", "dijkstra"):
+        ms, result = best_of(
+            3, lambda a=algorithm: planner.plan(costs, (2.5, 2.5), (97.5, 97.5), a)
+        )
+        figures[f"{algorithm}_ms"] = ms
+        figures[f"{algorithm}_expanded"] = result.expanded
+        print(f"{algorithm:8s} 2000 x 2000 corner to corner: {ms:7.1f} ms, "
+              f"{result.expanded} expanded, path {result.length:.1f} m")  # fmt: skip
+    crop = np.ascontiguousarray(costs[40:340, 40:340])
+    small = GridPlanner(GridGeometry(300, 300, RES))
+    s_cell, g_cell = free_cell_near(crop, 10), free_cell_near(crop, 290)
+    start = ((s_cell[1] + 0.5) * RES, (s_cell[0] + 0.5) * RES)
+    goal = ((g_cell[1] + 0.5) * RES, (g_cell[0] + 0.5) * RES)
+    ours_ms, ours = best_of(5, lambda: small.plan(crop, start, goal))
+    graph = grid_graph(crop)
+    nx_ms, nx_path = best_of(1, lambda: nx.astar_path(graph, s_cell, g_cell, octile, "weight"))
+    nx_cost = nx.path_weight(graph, nx_path, "weight")
+    figures.update(crop_ms=ours_ms, networkx_crop_ms=nx_ms, speed_ratio=nx_ms / ours_ms)
+    print(f"300 x 300 crop: GridPlanner {ours_ms:.2f} ms (cost {ours.cost:.3f}), networkx "
+          f"astar_path {nx_ms:.0f} ms (cost {nx_cost:.3f}): {nx_ms / ours_ms:.0f}x")  # fmt: skip
+    if args.json:
+        print(json.dumps(figures))
+
+
+if __name__ == "__main__":
+    main()

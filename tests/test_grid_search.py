@@ -1,0 +1,141 @@
+"""Grid A* and Dijkstra: optimal costs (checked against networkx), safety, unknown."""
+
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.geometry import GridGeometry
+from planner.grid_search import GridPlanner, PlanRequestError, cell_weights
+
+RES = 0.5
+
+
+def reference_cost(costs: np.ndarray, start, goal, allow_unknown: bool) -> float | None:
+    """networkx Dijkstra on the same 8-connected weighted grid (no corner cutting)."""
+    h, w = costs.shape
+    weights = cell_weights(allow_unknown)
+    if weights[costs[start]] == np.inf or weights[costs[goal]] == np.inf:
+        return None
+    if start == goal:
+        return 0.0
+    graph = nx.DiGraph()
+    for r in range(h):
+        for c in range(w):
+            if weights[costs[r, c]] == np.inf:
+                continue
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    rr, cc = r + dr, c + dc
+                    if (dr, dc) == (0, 0) or not (0 <= rr < h and 0 <= cc < w):
+                        continue
+                    if weights[costs[rr, cc]] == np.inf:
+                        continue
+                    if (
+                        dr
+                        and dc
+                        and (weights[costs[r, cc]] == np.inf or weights[costs[rr, c]] == np.inf)
+                    ):
+                        continue
+                    step = RES * (math.sqrt(2) if dr and dc else 1.0)
+                    graph.add_edge((r, c), (rr, cc), weight=step * weights[costs[rr, cc]])
+    try:
+        return nx.dijkstra_path_length(graph, start, goal)
+    except (nx.NetworkXNoPath, nx.NodeNotFound):
+        return None
+
+
+def centre(row: int, col: int) -> tuple[float, float]:
+    return ((col + 0.5) * RES, (row + 0.5) * RES)
+
+
+cost_values = st.sampled_from([FREE, FREE, FREE, 10, 100, 252, INSCRIBED, LETHAL, UNKNOWN])
+
+
+@settings(max_examples=120)
+@given(
+    grid=st.integers(3, 9).flatmap(
+        lambda n: st.lists(st.lists(cost_values, min_size=n, max_size=n), min_size=n, max_size=n)
+    ),
+    data=st.data(),
+    allow_unknown=st.booleans(),
+)
+def test_astar_and_dijkstra_find_the_networkx_optimum(grid, data, allow_unknown):
+    costs = np.array(grid, dtype=np.uint8)
+    n = costs.shape[0]
+    start = (data.draw(st.integers(0, n - 1)), data.draw(st.integers(0, n - 1)))
+    goal = (data.draw(st.integers(0, n - 1)), data.draw(st.integers(0, n - 1)))
+    planner = GridPlanner(GridGeometry(n, n, RES))
+    expected = reference_cost(costs, start, goal, allow_unknown)
+    for algorithm in ("astar", "dijkstra"):
+        result = planner.plan(costs, centre(*start), centre(*goal), algorithm, allow_unknown)
+        if expected is None:
+            assert not result.found and result.path == []
+            continue
+        assert result.found
+        assert result.cost == pytest.approx(expected, rel=1e-9)
+        cells = {(int(y / RES), int(x / RES)) for x, y in result.path}
+        values = {int(costs[c]) for c in cells}
+        assert LETHAL not in values and INSCRIBED not in values
+        assert allow_unknown or UNKNOWN not in values
+        assert result.path[0] == centre(*start) and result.path[-1] == centre(*goal)
+
+
+def test_unknown_is_crossed_only_when_allowed():
+    costs = np.zeros((5, 9), np.uint8)
+    costs[:, 4] = UNKNOWN  # a wall of unknown between the two halves
+    planner = GridPlanner(GridGeometry(9, 5, RES))
+    assert planner.plan(costs, centre(2, 0), centre(2, 8), allow_unknown=True).found
+    blocked = planner.plan(costs, centre(2, 0), centre(2, 8), allow_unknown=False)
+    assert not blocked.found and blocked.min_clearance is None
+
+
+def test_an_unreachable_goal_is_reported_after_exploring_only_its_side():
+    costs = np.zeros((50, 50), np.uint8)
+    costs[:, 10] = LETHAL
+    planner = GridPlanner(GridGeometry(50, 50, RES))
+    result = planner.plan(costs, centre(25, 2), centre(25, 40))
+    assert not result.found
+    assert result.expanded == 50 * 10  # every cell left of the wall, none beyond
+
+
+def test_length_cost_and_clearance_of_a_straight_path():
+    costs = np.zeros((5, 20), np.uint8)
+    costs[0, :] = LETHAL
+    planner = GridPlanner(GridGeometry(20, 5, RES))
+    result = planner.plan(costs, centre(3, 1), centre(3, 18))
+    assert result.length == pytest.approx(17 * RES)
+    assert result.cost == pytest.approx(17 * RES)  # free cells weigh 1
+    assert result.min_clearance == pytest.approx(3 * RES)  # row 3 to the lethal row 0
+
+
+def test_graded_costs_add_the_navfn_weight():
+    costs = np.full((1, 3), 100, np.uint8)
+    result = GridPlanner(GridGeometry(3, 1, 1.0)).plan(costs, (0.5, 0.5), (2.5, 0.5))
+    assert result.cost == pytest.approx(2 * (50 + 0.8 * 100) / 50)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"start": (-1.0, 0.5)}, "start"),
+        ({"goal": (0.5, 99.0)}, "goal"),
+        ({"algorithm": "theta*"}, "algorithm"),
+    ],
+)
+def test_bad_requests_name_the_field(kwargs, field):
+    planner = GridPlanner(GridGeometry(4, 4, 1.0))
+    args = {"start": (0.5, 0.5), "goal": (3.5, 3.5), **kwargs}
+    with pytest.raises(PlanRequestError, match=f"^{field}: "):
+        planner.plan(np.zeros((4, 4), np.uint8), **args)
+
+
+def test_planning_from_an_impassable_start_finds_nothing():
+    costs = np.zeros((4, 4), np.uint8)
+    costs[0, 0] = LETHAL
+    result = GridPlanner(GridGeometry(4, 4, 1.0)).plan(costs, (0.5, 0.5), (3.5, 3.5))
+    assert not result.found and result.expanded == 0
