@@ -85,7 +85,6 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     bodies: list[dict[str, Any]]
-    texts: list[str | None]
     future: Future
 
 
@@ -158,20 +157,14 @@ class MapService:
         self._lock_handle.close()
 
     # -------------------------------------------------------------------- writes
-    def submit(
-        self,
-        scans: list[Scan],
-        bodies: list[dict[str, Any]],
-        texts: list[str | None] | None = None,
-    ) -> Future:
-        """Queue validated scans (all or none) with their JSON objects (and, optionally,
-        the JSON texts they were parsed from, journaled as is); the future gives
-        ``list[Ack]`` or raises IngestError."""
+    def submit(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> Future:
+        """Queue validated scans (all or none) with the JSON objects they were parsed from;
+        the future gives ``list[Ack]`` or raises IngestError."""
         future: Future = Future()
         if self._closed:
             future.set_exception(IngestError(503, "the map server is shutting down"))
         else:
-            self._queue.put(_Submission(scans, bodies, texts or [None] * len(scans), future))
+            self._queue.put(_Submission(scans, bodies, future))
         return future
 
     def ingest(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> list[Ack]:
@@ -222,10 +215,7 @@ class MapService:
             if not accepted:
                 return
             try:
-                seqs = self.journal.append(
-                    [b for sub in accepted for b in sub.bodies],
-                    [t for sub in accepted for t in sub.texts],
-                )
+                seqs = self.journal.append([b for sub in accepted for b in sub.bodies])
             except Exception as exc:  # disk full, I/O error: nothing was fused
                 for sub in accepted:
                     sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))

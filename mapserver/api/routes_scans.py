@@ -23,8 +23,8 @@ def _body_schema(model: type) -> dict[str, Any]:
     return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
 
 
-async def read_json(request: Request) -> tuple[Any, bytes]:
-    """The request's JSON body and its bytes, refused (413) past ``limits.max_body_bytes``."""
+async def read_json(request: Request) -> Any:
+    """The request's JSON body, refused (413) past ``limits.max_body_bytes``."""
     limit = request.app.state.settings.limits.max_body_bytes
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > limit:
@@ -35,9 +35,8 @@ async def read_json(request: Request) -> tuple[Any, bytes]:
         if size > limit:
             raise HTTPException(413, f"body: at most {limit} bytes, got more")
         chunks.append(chunk)
-    raw = b"".join(chunks)
     try:
-        return json.loads(raw), raw
+        return json.loads(b"".join(chunks))
     except (ValueError, UnicodeDecodeError) as exc:
         raise HTTPException(400, f"body: not valid JSON ({exc})") from None
 
@@ -49,13 +48,11 @@ def _parse(item: Any, prefix: str, max_beams: int) -> Scan:
         raise HTTPException(422, f"{prefix}{exc}") from None
 
 
-async def _submit(
-    request: Request, scans: list[Scan], bodies: list[dict], texts: list[str | None] | None
-) -> list[Any]:
+async def _submit(request: Request, scans: list[Scan], bodies: list[dict]) -> list[Any]:
     service: MapService = request.app.state.service
     metrics = request.app.state.metrics
     try:
-        acks = await asyncio.wrap_future(service.submit(scans, bodies, texts))
+        acks = await asyncio.wrap_future(service.submit(scans, bodies))
     except IngestError as exc:
         metrics.scans_rejected.labels(str(exc.status)).inc()
         raise HTTPException(exc.status, exc.detail) from None
@@ -72,9 +69,9 @@ async def _submit(
     summary="Post one scan; durable once acknowledged",
 )
 async def post_scan(request: Request) -> ScanAck:
-    body, raw = await read_json(request)
+    body = await read_json(request)
     scan = _parse(body, "", request.app.state.settings.limits.max_beams)
-    (ack,) = await _submit(request, [scan], [body], [raw.decode()])
+    (ack,) = await _submit(request, [scan], [body])
     return ScanAck(seq=ack.seq, map_version=ack.map_version)
 
 
@@ -87,7 +84,7 @@ async def post_scan(request: Request) -> ScanAck:
     summary="Post several scans; all are accepted or none",
 )
 async def post_scans(request: Request) -> ScanBatchAck:
-    body, _ = await read_json(request)
+    body = await read_json(request)
     limits = request.app.state.settings.limits
     items = body.get("scans") if isinstance(body, dict) else None
     if not isinstance(items, list) or not items:
@@ -95,5 +92,5 @@ async def post_scans(request: Request) -> ScanBatchAck:
     if len(items) > limits.max_batch:
         raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
     scans = [_parse(item, f"scans[{i}].", limits.max_beams) for i, item in enumerate(items)]
-    acks = await _submit(request, scans, items, None)
+    acks = await _submit(request, scans, items)
     return ScanBatchAck(acks=[ScanAck(seq=a.seq, map_version=a.map_version) for a in acks])
