@@ -37,9 +37,10 @@ Errors - every failure raises a subclass of ``MapClientError``; each names the e
 
 Wire format notes:
 
-- Scans are sent as JSON with no-return beams as the token ``Infinity`` (as Python's
-  ``json`` and ``mapserver.scanfile`` write them; CONTRACT 2.1 names +Infinity a valid
-  range), so bodies are encoded here rather than by httpx, which refuses non-finite floats.
+- Scans are sent as JSON. A ``Scan``'s no-return beams go as ``2 * range_max + 1`` (no
+  return under REP 117, and strict JSON); a mapping is sent as given, ``Infinity`` tokens
+  included (CONTRACT 2.1 allows them), so bodies are encoded here rather than by httpx,
+  which refuses non-finite floats.
 - ``POST /v1/scans/batch`` takes ``{"scans": [scan, ...]}`` and replies
   ``200 {"acks": [{"seq": n, "map_version": v}, ...]}``, one ack per scan in order
   (this reply shape is the project's extension of CONTRACT 2.1).
@@ -723,9 +724,17 @@ def _same_count(reply: _Fields, key: str, sent: int) -> list[_Fields]:
 
 
 def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
-    """A scan's CONTRACT 2.1 JSON object; a mapping is sent as is (the server validates)."""
+    """A scan's CONTRACT 2.1 JSON object; a mapping is sent as is (the server validates).
+
+    A Scan's no-return beams (+inf) are sent as ``2 * range_max + 1``: also "no return"
+    under REP 117 (any value above range_max), but strict JSON, which the server parses
+    about ten times faster than text holding ``Infinity``.
+    """
     if isinstance(scan, Scan):
-        return scan.to_dict()
+        body = scan.to_dict()
+        no_return = 2.0 * scan.range_max + 1.0
+        body["ranges"] = [no_return if r == math.inf else r for r in body["ranges"]]
+        return body
     if isinstance(scan, Mapping):
         return dict(scan)
     raise TypeError(f"scan must be a Scan or a dict, got {type(scan).__name__}: {_short(scan)}")

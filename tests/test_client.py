@@ -252,9 +252,9 @@ def test_post_scan_sends_the_contract_object_and_parses_the_ack():
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/scans")
     sent = body_of(server.last)
     assert sent["unit_id"] == "u1" and sent["stamp"] == 12.3 and sent["frame"] == "map"
-    # no-return stays +Infinity, an invalid (NaN) beam is null: CONTRACT 2.1 semantics
-    assert sent["ranges"][:3] == [1.2, math.inf, None]
-    assert b"Infinity" in server.last.content
+    # no return goes as 2 * range_max + 1 (strict JSON), an invalid (NaN) beam as null
+    assert sent["ranges"] == [1.2, 2 * scan.range_max + 1, None, 21.0]
+    assert b"Infinity" not in server.last.content
 
 
 def test_post_scan_sends_a_dict_as_is():

@@ -123,6 +123,8 @@ def scan_tails(count: int) -> list[bytes]:
     tails = []
     for scan in sample_scans(warehouse, count, beams=1080, seed=0, units=8):
         data = scan.to_dict()
+        no_return = 2 * scan.range_max + 1  # strict JSON, as MapClient sends it
+        data["ranges"] = [no_return if r == float("inf") else r for r in data["ranges"]]
         del data["unit_id"], data["stamp"]
         tails.append(json.dumps(data).encode()[1:])  # drop "{": body() supplies it
     return tails
