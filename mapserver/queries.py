@@ -22,6 +22,7 @@ from numba import njit
 from mapserver.belief import BeliefGrid, CellState
 from mapserver.costvalues import INSCRIBED, UNKNOWN
 from mapserver.fusion_kernel import cell_of, clip_segment
+from mapserver.geometry import GridGeometry
 
 STATE_NAMES = {CellState.FREE: "free", CellState.OCCUPIED: "occupied", CellState.UNKNOWN: "unknown"}
 
@@ -82,10 +83,11 @@ def query_cells(
 
 
 def query_segments(
-    belief: BeliefGrid, costs: np.ndarray, segments: Sequence[Sequence[float]]
+    geometry: GridGeometry, costs: np.ndarray, segments: Sequence[Sequence[float]]
 ) -> list[SegmentReport]:
-    """Reports for ``segments`` [(x0, y0, x1, y1) m] against ``costs`` (H, W) uint8."""
-    g = belief.geometry
+    """Reports for ``segments`` [(x0, y0, x1, y1) m] against ``costs`` (H, W) uint8 on a
+    grid of ``geometry`` (the server's costmap or a planner's local copy)."""
+    g = geometry
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     xmin, ymin, xmax, ymax = g.bounds
     inside_ends = np.zeros((seg.shape[0], 4), dtype=np.int64)

@@ -357,7 +357,7 @@ class MapService:
 
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
         with self._lock:
-            return query_segments(self.belief, self.costmap.costs, segments)
+            return query_segments(self.geometry, self.costmap.costs, segments)
 
     def plan(
         self,

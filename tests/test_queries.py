@@ -24,8 +24,8 @@ def costs_with(**cells) -> np.ndarray:
 
 def test_segment_reports_the_first_blocked_cell_from_its_start_and_the_max_cost():
     costs = costs_with(inscribed=(12, 5), lethal=(15, 5), unknown1=(3, 5))
-    (forward,) = query_segments(BeliefGrid(GEOMETRY), costs, [[0.5, 5.5, 19.5, 5.5]])
-    (backward,) = query_segments(BeliefGrid(GEOMETRY), costs, [[19.5, 5.5, 0.5, 5.5]])
+    (forward,) = query_segments(GEOMETRY, costs, [[0.5, 5.5, 19.5, 5.5]])
+    (backward,) = query_segments(GEOMETRY, costs, [[19.5, 5.5, 0.5, 5.5]])
     assert forward.blocked and forward.first_blocked == (12.5, 5.5)
     assert backward.first_blocked == (15.5, 5.5)
     assert forward.max_cost == LETHAL
@@ -33,9 +33,9 @@ def test_segment_reports_the_first_blocked_cell_from_its_start_and_the_max_cost(
 
 
 def test_cells_off_the_map_count_as_unknown_and_huge_segments_are_answered():
-    belief, costs = BeliefGrid(GEOMETRY), costs_with()
+    costs = costs_with()
     half_off, huge, outside = query_segments(
-        belief, costs, [[10.5, 2.5, 29.5, 2.5], [-1e300, 2.5, 1e300, 2.5], [-9, -9, -5, -5]]
+        GEOMETRY, costs, [[10.5, 2.5, 29.5, 2.5], [-1e300, 2.5, 1e300, 2.5], [-9, -9, -5, -5]]
     )
     assert half_off.unknown_fraction == pytest.approx(0.5) and not half_off.blocked
     assert half_off.max_cost == FREE
