@@ -138,6 +138,8 @@ class Warehouse:
         and every cross-aisle).
     lane_y: [m] ascending y of the horizontal lanes' centre lines (the staging aisle, the
         aisles between rack rows, the top aisle).
+    kinds: what each box of ``world`` is, in order: ``"wall"``, ``"rack"`` or ``"pallet"``
+        (empty when unknown).
 
     Every crossing of a ``lane_x`` and a ``lane_y`` line is a junction, and the straight
     run between two neighbouring junctions keeps at least half an aisle of clearance from
@@ -149,6 +151,13 @@ class Warehouse:
     height: float
     lane_x: tuple[float, ...]
     lane_y: tuple[float, ...]
+    kinds: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kinds and len(self.kinds) != len(self.world):
+            raise ValueError(
+                f"kinds must name each of the {len(self.world)} boxes, got {len(self.kinds)} kinds"
+            )
 
 
 # Perimeter wall thickness [m]. Odd on purpose: it offsets every wall and rack face from
@@ -214,6 +223,7 @@ def warehouse_layout(
         for x0 in block_x0:
             boxes.append((x0, y0, x0 + block_m, y0 + rack_depth_m))
             boxes.append((x0, y0 + rack_depth_m, x0 + block_m, y0 + row_m))
+    racks = len(boxes) - 4
 
     # Pallets: 0.3 m clear of the wall and of the staging aisle.
     px, py = PALLET_M
@@ -235,7 +245,22 @@ def warehouse_layout(
         height=float(height_m),
         lane_x=tuple(float(v) for v in lane_x),
         lane_y=tuple(float(v) for v in lane_y),
+        kinds=("wall",) * 4 + ("rack",) * racks + ("pallet",) * (len(boxes) - 4 - racks),
     )
+
+
+def beam_angles(beams: int, fov: float) -> tuple[float, float]:
+    """``(angle_min, angle_increment)`` [rad] of ``beams`` beams spread over ``fov`` [rad].
+
+    The beams are centred on the sensor's heading: beam i points at
+    ``angle_min + i * angle_increment`` from it, with ``angle_min = -fov / 2`` and
+    ``angle_increment = fov / beams`` (so a full circle holds no duplicate beam).
+    """
+    if isinstance(beams, bool) or not isinstance(beams, int | np.integer) or beams < 1:
+        raise ValueError(f"beams must be a positive integer, got {beams!r}")
+    if not (0 < fov <= 2 * math.pi):
+        raise ValueError(f"fov must be in (0, 2 pi] rad, got {fov!r}")
+    return -fov / 2, fov / beams
 
 
 def scan_at(
@@ -261,15 +286,11 @@ def scan_at(
     range_noise: [m] standard deviation of gaussian noise added to returns (kept >= 0);
         needs ``rng`` when positive.
     """
-    if beams < 1:
-        raise ValueError(f"beams must be a positive integer, got {beams!r}")
-    if not (0 < fov <= 2 * math.pi):
-        raise ValueError(f"fov must be in (0, 2 pi] rad, got {fov!r}")
+    angle_min, increment = beam_angles(beams, fov)
     if not 0 <= range_min < range_max:
         raise ValueError(f"range_min must be in [0, range_max = {range_max}) m, got {range_min!r}")
     if not range_noise >= 0:
         raise ValueError(f"range_noise must be >= 0 m, got {range_noise!r}")
-    angle_min, increment = -fov / 2, fov / beams
     angles = pose.yaw + angle_min + increment * np.arange(beams)
     ranges = world.cast(pose.x, pose.y, angles, range_max)
     if range_noise > 0:

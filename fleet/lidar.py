@@ -1,0 +1,152 @@
+"""A planar LiDAR on a drive unit, cast in the PyBullet world with ``rayTestBatch``.
+
+The sensor sits on the unit's centre line, ``height`` [m] above the floor, and sweeps
+``beams`` horizontal beams over ``fov`` centred on the unit's heading
+(``fleet.boxworld.beam_angles``: beam i at ``-fov / 2 + i * fov / beams``).
+
+Own body: each ray starts ``start`` = body radius + ``RAY_START_CLEARANCE_M`` from the
+sensor, outside the unit's own convex body, so the unit never sees itself; ranges are
+still measured from the sensor (``start + fraction * (range_max - start)``). Anything
+closer than ``start`` (inside the body) is never seen. The rays are fixed in the unit's
+body frame and cast with ``parentObjectUniqueId``, so Bullet moves them with the body and
+nothing is rebuilt per scan.
+
+Ranges follow ROS REP 117 (CONTRACT 2.1): a miss (no surface within ``range_max``) reads
+``+inf``. Sensor flaws, applied in this order with the LiDAR's own generator:
+
+1. range noise: every return gets gaussian noise of std ``range_noise`` [m] (kept >= 0);
+   a noisy return beyond ``range_max`` becomes a miss, one below ``range_min`` stays (the
+   server drops it as invalid, REP 117);
+2. dropouts: each beam independently reads ``+inf`` (no return) with ``dropout_prob``;
+3. spurious returns: each beam independently, with ``spurious_prob``, reads a return
+   uniform in ``[range_min, min(true range, range_max)]`` (dust, a reflection).
+
+Each flaw draws a fixed number of variates per scan whatever the geometry, so a seeded
+LiDAR's flaws do not depend on what it sees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fleet.boxworld import beam_angles
+from fleet.world import World
+
+RAY_START_CLEARANCE_M = 0.001
+"""[m] gap between the unit's body and the start of its rays."""
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """A planar LiDAR's specification.
+
+    beams: number of beams; fov: [rad] field of view in (0, 2 pi], centred on the heading.
+    range_min, range_max: [m] the sensor's limits (REP 117).
+    rate_hz: [Hz] scans per second.
+    height: [m] the scan plane above the floor (objects lower than it are not seen).
+    range_noise: [m] std of gaussian noise on each return.
+    dropout_prob: probability that a beam reads no return.
+    spurious_prob: probability that a beam reads a spurious short return.
+    """
+
+    beams: int = 360
+    fov: float = 2 * math.pi
+    range_min: float = 0.05
+    range_max: float = 20.0
+    rate_hz: float = 10.0
+    height: float = 0.2
+    range_noise: float = 0.0
+    dropout_prob: float = 0.0
+    spurious_prob: float = 0.0
+
+    def __post_init__(self) -> None:
+        beam_angles(self.beams, self.fov)  # checks beams and fov
+        if not (math.isfinite(self.range_max) and 0 <= self.range_min < self.range_max):
+            raise ValueError(
+                f"range_min must be in [0, range_max = {self.range_max!r}) m, "
+                f"got {self.range_min!r}"
+            )
+        for name in ("rate_hz", "height"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        if not (math.isfinite(self.range_noise) and self.range_noise >= 0):
+            raise ValueError(f"range_noise must be >= 0 m, got {self.range_noise!r}")
+        for name in ("dropout_prob", "spurious_prob"):
+            value = getattr(self, name)
+            if not 0 <= value <= 1:
+                raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+
+    @property
+    def period(self) -> float:
+        """[s] time between two scans."""
+        return 1.0 / self.rate_hz
+
+    @property
+    def angle_min(self) -> float:
+        """[rad] the first beam's angle from the heading."""
+        return beam_angles(self.beams, self.fov)[0]
+
+    @property
+    def angle_increment(self) -> float:
+        """[rad] the angle between neighbouring beams."""
+        return beam_angles(self.beams, self.fov)[1]
+
+    def angles(self) -> np.ndarray:
+        """[rad] each beam's angle from the heading."""
+        return self.angle_min + self.angle_increment * np.arange(self.beams)
+
+
+class Lidar:
+    """One unit's LiDAR: ``config``, mounted on a body of ``body_radius`` [m], flaws drawn
+    from ``rng``."""
+
+    def __init__(self, config: LidarConfig, body_radius: float, rng: np.random.Generator) -> None:
+        self.config = config
+        self.rng = rng
+        self.start = body_radius + RAY_START_CLEARANCE_M
+        if not self.start < config.range_max:
+            raise ValueError(
+                f"range_max must exceed the unit's radius plus {RAY_START_CLEARANCE_M} m "
+                f"({self.start} m), got {config.range_max!r}"
+            )
+        self.angle_min, self.angle_increment = beam_angles(config.beams, config.fov)  # [rad]
+        angles = config.angles()
+        c, s = np.cos(angles), np.sin(angles)
+        z = np.full(config.beams, config.height)
+        self._span = config.range_max - self.start
+        # Body-frame ray ends as Python lists, built once: PyBullet converts lists fastest.
+        self._from = np.stack([self.start * c, self.start * s, z], axis=1).tolist()
+        self._to = np.stack([config.range_max * c, config.range_max * s, z], axis=1).tolist()
+
+    def true_ranges(self, world: World, unit_id: str) -> np.ndarray:
+        """[m] flawless ranges from unit ``unit_id``'s sensor; +inf where nothing is hit."""
+        fractions = world.cast_rays(self._from, self._to, frame_unit=unit_id)
+        return fractions * self._span + self.start  # inf stays inf
+
+    def corrupt(self, ranges: np.ndarray) -> np.ndarray:
+        """``ranges`` [m] with the configured noise, dropouts and spurious returns (new array)."""
+        cfg = self.config
+        true = np.asarray(ranges, dtype=np.float64)
+        n = true.shape[0]
+        out = true.copy()
+        if cfg.range_noise > 0:  # a miss (+inf) stays a miss
+            out = np.maximum(out + self.rng.normal(0.0, cfg.range_noise, n), 0.0)
+            out[out > cfg.range_max] = np.inf
+        if cfg.dropout_prob > 0:
+            out[self.rng.random(n) < cfg.dropout_prob] = np.inf
+        if cfg.spurious_prob > 0:
+            chance, where = self.rng.random((2, n))
+            spurious = chance < cfg.spurious_prob
+            if spurious.any():
+                far = np.minimum(true[spurious], cfg.range_max)
+                span = np.maximum(far - cfg.range_min, 0.0)
+                out[spurious] = cfg.range_min + where[spurious] * span
+        return out
+
+    def measure(self, world: World, unit_id: str) -> np.ndarray:
+        """[m] one scan's ranges from unit ``unit_id``: cast, then corrupted."""
+        return self.corrupt(self.true_ranges(world, unit_id))

@@ -1,0 +1,121 @@
+"""Posting each tick's scans to the map server through ``MapClient``.
+
+``ScanPoster.post`` sends one tick's scans as one ``POST /v1/scans/batch`` (split into
+requests of at most ``max_batch`` scans, the server's ``limits.max_batch``). Stamps are
+the sim's, so the server must not have seen later stamps of these units (CONTRACT 2.1:
+409).
+
+- ``in_flight = 0`` (default): ``post`` waits for the acks and returns them, one per scan
+  in order: once it returns, the scans are durable.
+- ``in_flight = n > 0``: a worker thread sends the batches in order while the simulation
+  runs on, with at most ``n`` ticks' batches queued (``post`` blocks when the queue is
+  full, so a slower server slows the simulation down rather than piling up scans).
+  ``post`` returns the acks received since the last call (earlier ticks' scans);
+  ``flush`` waits for every batch and returns the remaining acks. After a failed request
+  no further batch is sent, and ``post``, ``flush`` and ``close`` raise its error.
+
+Close a poster (``close`` or ``with``) to stop its worker.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Sequence
+
+from mapserver.client import MapClient, ScanAck
+from mapserver.scan import Scan
+
+DEFAULT_MAX_BATCH = 256
+"""Scans per request: the map server's default ``limits.max_batch``."""
+
+
+class ScanPoster:
+    """Sends scans through ``client`` in batches of at most ``max_batch``, with up to
+    ``in_flight`` ticks' batches on their way (module docstring)."""
+
+    def __init__(
+        self, client: MapClient, max_batch: int = DEFAULT_MAX_BATCH, in_flight: int = 0
+    ) -> None:
+        for name, value, low in (("max_batch", max_batch, 1), ("in_flight", in_flight, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        self.client = client
+        self.max_batch = max_batch
+        self.in_flight = in_flight
+        self.posted = 0  # scans acknowledged so far
+        self._acks: list[ScanAck] = []
+        self._lock = threading.Lock()
+        self._error: Exception | None = None
+        self._queue: queue.Queue[Sequence[Scan] | None] | None = None
+        self._worker: threading.Thread | None = None
+        if in_flight:
+            self._queue = queue.Queue(maxsize=in_flight)
+            self._worker = threading.Thread(target=self._run, name="scan-poster", daemon=True)
+            self._worker.start()
+
+    def post(self, scans: Sequence[Scan]) -> list[ScanAck]:
+        """Send one tick's ``scans``; returns their acks (waiting) or, with ``in_flight``,
+        the acks received since the last call."""
+        if self._queue is None:
+            acks = self._send(scans)
+            self.posted += len(acks)
+            return acks
+        self._raise_error()
+        if scans:
+            self._queue.put(list(scans))
+        return self._take_acks()
+
+    def flush(self) -> list[ScanAck]:
+        """Wait until every queued batch is acknowledged; returns the acks not yet returned."""
+        if self._queue is not None:
+            self._queue.join()
+        self._raise_error()
+        return self._take_acks()
+
+    def close(self) -> None:
+        """Stop the worker after the queued batches (idempotent); raises a pending error."""
+        if self._worker is not None and self._queue is not None:
+            self._queue.put(None)
+            self._worker.join()
+            self._worker = None
+        self._raise_error()
+
+    def __enter__(self) -> ScanPoster:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _send(self, scans: Sequence[Scan]) -> list[ScanAck]:
+        acks: list[ScanAck] = []
+        for start in range(0, len(scans), self.max_batch):
+            acks += self.client.post_scans(scans[start : start + self.max_batch])
+        return acks
+
+    def _run(self) -> None:
+        assert self._queue is not None
+        while True:
+            batch = self._queue.get()
+            try:
+                if batch is None:
+                    return
+                if self._error is None:
+                    acks = self._send(batch)
+                    with self._lock:
+                        self._acks += acks
+                        self.posted += len(acks)
+            except Exception as exc:  # raised to the caller by post, flush and close
+                self._error = exc
+            finally:
+                self._queue.task_done()
+
+    def _take_acks(self) -> list[ScanAck]:
+        with self._lock:
+            acks, self._acks = self._acks, []
+        return acks
+
+    def _raise_error(self) -> None:
+        if self._error is not None:
+            raise self._error
