@@ -44,6 +44,9 @@ Wire format notes:
 - ``POST /v1/scans/batch`` takes ``{"scans": [scan, ...]}`` and replies
   ``200 {"acks": [{"seq": n, "map_version": v}, ...]}``, one ack per scan in order
   (this reply shape is the project's extension of CONTRACT 2.1).
+- ``POST /v1/units`` and ``GET /v1/units`` (``publish_units``, ``units``) carry units'
+  poses, planned paths and freezes for the live viewer: the project's extension of
+  CONTRACT section 2.
 - Grids are fetched as ``format=raw``: row-major bytes, row 0 at the origin's y (the
   bottom row), so ``data[row, col]`` is cell (col, row) of ``GridGeometry``.
 """
@@ -59,10 +62,11 @@ from typing import Any
 
 import httpx
 import numpy as np
+import orjson
 
 from mapserver.costmap import Patch
 from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
+from mapserver.scan import Pose2D, Scan
 
 # ---------------------------------------------------------------------------- errors
 
@@ -268,6 +272,25 @@ class PlanResult:
     map_version: int
 
 
+@dataclass(frozen=True)
+class UnitState:
+    """A unit's state as its fleet publishes it for the viewer (``/v1/units``, a project
+    extension of CONTRACT section 2).
+
+    unit_id; stamp [s] (a unit's stamps never go backwards); pose: x, y [m] of the unit's
+    centre and yaw [rad]; path: the unit's planned path [(x, y) m], empty when it has
+    none; frozen: the unit waits because no admissible path or lane was found; reason:
+    why it is frozen or waiting (free text, None when there is nothing to say).
+    """
+
+    unit_id: str
+    stamp: float
+    pose: Pose2D
+    path: tuple[tuple[float, float], ...] = ()
+    frozen: bool = False
+    reason: str | None = None
+
+
 # ---------------------------------------------------------------------------- client
 
 
@@ -302,7 +325,7 @@ class MapClient:
 
     def post_scan(self, scan: Scan | Mapping[str, Any]) -> ScanAck:
         """Send one scan (a ``Scan`` or its CONTRACT 2.1 dict as is); durable once acked."""
-        reply = self._json("POST", "/v1/scans", body=_scan_body(scan))
+        reply = self._json("POST", "/v1/scans", body=_scan_body(scan), fast=isinstance(scan, Scan))
         return _ack(reply)
 
     def post_scans(self, scans: Iterable[Scan | Mapping[str, Any]]) -> list[ScanAck]:
@@ -310,10 +333,12 @@ class MapClient:
 
         Replies ``{"acks": [{"seq", "map_version"}, ...]}``; an empty batch sends nothing.
         """
-        bodies = [_scan_body(scan) for scan in scans]
-        if not bodies:
+        scans = list(scans)
+        if not scans:
             return []
-        reply = self._json("POST", "/v1/scans/batch", body={"scans": bodies})
+        bodies = [_scan_body(scan) for scan in scans]
+        fast = all(isinstance(scan, Scan) for scan in scans)
+        reply = self._json("POST", "/v1/scans/batch", body={"scans": bodies}, fast=fast)
         return [_ack(ack) for ack in _same_count(reply, "acks", len(bodies))]
 
     # -- map (2.2, 2.3)
@@ -463,6 +488,35 @@ class MapClient:
             map_version=r.get("map_version", int),
         )
 
+    # -- units (project extension, for the viewer)
+
+    def publish_units(self, units: Iterable[UnitState]) -> int:
+        """Publish units' poses, planned paths and freezes (all or none); returns how many
+        units the server now holds a state for. Publishing nothing sends nothing (0)."""
+        bodies = [_unit_body(f"units[{i}]", unit) for i, unit in enumerate(units)]
+        if not bodies:
+            return 0
+        reply = self._json("POST", "/v1/units", body={"units": bodies})
+        return reply.get("tracked", int)
+
+    def units(self) -> list[UnitState]:
+        """The latest published state of every unit, ordered by ``unit_id``."""
+        reply = self._json("GET", "/v1/units")
+        states = []
+        for r in reply.items("units"):
+            pose = r.child("pose")
+            states.append(
+                UnitState(
+                    unit_id=r.get("unit_id", str),
+                    stamp=r.get("stamp", float),
+                    pose=Pose2D(pose.get("x", float), pose.get("y", float), pose.get("yaw", float)),
+                    path=tuple(r.points("path")),
+                    frozen=r.get("frozen", bool),
+                    reason=r.get("reason", str, nullable=True),
+                )
+            )
+        return states
+
     # -- operations (2.7)
 
     def healthz(self) -> bool:
@@ -488,13 +542,22 @@ class MapClient:
         path: str,
         params: Mapping[str, Any] | None = None,
         body: Any = None,
+        fast: bool = False,
     ) -> httpx.Response:
-        """One request with auth and timeout; returns a 2xx response or raises."""
+        """One request with auth and timeout; returns a 2xx response or raises.
+
+        ``fast``: the body holds only finite floats outside numpy arrays (bodies built from
+        ``Scan`` objects), so orjson encodes it (NaN in arrays as null, an invalid beam);
+        other bodies go through ``json`` so that ``Infinity`` tokens pass as given.
+        """
         endpoint = f"{method} {path}"
         headers = dict(self._headers)
         content = None
         if body is not None:
-            content = json.dumps(body, separators=(",", ":")).encode()
+            if fast:
+                content = orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
+            else:
+                content = json.dumps(body, separators=(",", ":")).encode()
             headers["Content-Type"] = "application/json"
         try:
             response = self._http.request(
@@ -517,10 +580,11 @@ class MapClient:
         path: str,
         params: Mapping[str, Any] | None = None,
         body: Any = None,
+        fast: bool = False,
     ) -> _Fields:
         """A request whose reply is a JSON object."""
         endpoint = f"{method} {path}"
-        response = self._send(method, path, params, body)
+        response = self._send(method, path, params, body, fast)
         try:
             data = json.loads(response.content)
         except ValueError:
@@ -731,13 +795,28 @@ def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
     about ten times faster than text holding ``Infinity``.
     """
     if isinstance(scan, Scan):
-        body = scan.to_dict()
+        body = scan.to_dict(with_ranges=False)
         no_return = 2.0 * scan.range_max + 1.0
-        body["ranges"] = [no_return if r == math.inf else r for r in body["ranges"]]
+        body["ranges"] = np.where(scan.ranges == math.inf, no_return, scan.ranges)
         return body
     if isinstance(scan, Mapping):
         return dict(scan)
     raise TypeError(f"scan must be a Scan or a dict, got {type(scan).__name__}: {_short(scan)}")
+
+
+def _unit_body(name: str, unit: UnitState) -> dict[str, Any]:
+    """A UnitState as the JSON object of ``POST /v1/units``; ValueError names a bad field."""
+    if not isinstance(unit, UnitState):
+        raise TypeError(f"{name} must be a UnitState, got {type(unit).__name__}: {_short(unit)}")
+    x, y, yaw = _row(f"{name}.pose", (unit.pose.x, unit.pose.y, unit.pose.yaw), 3)
+    return {
+        "unit_id": unit.unit_id,
+        "stamp": _row(f"{name}.stamp", (unit.stamp,), 1)[0],
+        "pose": {"x": x, "y": y, "yaw": yaw},
+        "path": _rows(f"{name}.path", unit.path, 2),
+        "frozen": bool(unit.frozen),
+        "reason": unit.reason,
+    }
 
 
 def _rows(name: str, values: Iterable[Iterable[float]], n: int) -> list[list[float]]:

@@ -91,8 +91,9 @@ class Scan:
         """Per-beam class (BEAM_RETURN, BEAM_NO_RETURN or BEAM_INVALID) by REP 117."""
         return classify_ranges(self.ranges, self.range_min, self.range_max)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The CONTRACT 2.1 JSON object (NaN ranges as null, no-return as Infinity)."""
+    def to_dict(self, with_ranges: bool = True) -> dict[str, Any]:
+        """The CONTRACT 2.1 JSON object (NaN ranges as null, no-return as Infinity);
+        without ``ranges`` when ``with_ranges`` is False (callers that encode them)."""
         out: dict[str, Any] = {
             "unit_id": self.unit_id,
             "stamp": self.stamp,
@@ -102,8 +103,9 @@ class Scan:
             "angle_increment": self.angle_increment,
             "range_min": self.range_min,
             "range_max": self.range_max,
-            "ranges": [None if math.isnan(r) else float(r) for r in self.ranges.tolist()],
         }
+        if with_ranges:
+            out["ranges"] = [None if math.isnan(r) else float(r) for r in self.ranges.tolist()]
         if self.pose_std is not None:
             out["pose_std"] = {"xy": self.pose_std.xy, "yaw": self.pose_std.yaw}
         return out
