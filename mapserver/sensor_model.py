@@ -12,7 +12,7 @@ Defaults (CONTRACT section 1), in both units:
 
 - ``p_hit = 0.7``   # = +0.847 log-odds per return
 - ``p_miss = 0.4``  # = -0.405 log-odds per pass-through
-- ``clamp_min = -5.0``  # = p 0.0067: 13 returns to flip a saturated free cell
+- ``clamp_min = -5.0``  # = p 0.0067: 6 returns (of +0.847) to flip a saturated free cell
 - ``clamp_max = +5.0``  # = p 0.9933: 13 passes to flip a saturated occupied cell
 - ``occupied_threshold = 0.65``  # = +0.619 log-odds
 - ``free_threshold = 0.25``      # = -1.099 log-odds

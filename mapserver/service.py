@@ -341,6 +341,15 @@ class MapService:
         when = belief.stamp if at is None else at
         return GridRead(occupancy_percent(belief.probability_at(when)), version, when)
 
+    def age_read(self, at: float | None = None) -> GridRead:
+        """Evidence age [s] per cell (float32) at ``at`` [s] (default: the map's stamp):
+        ``at - last_observed``, NaN where never observed, negative for evidence newer
+        than ``at``."""
+        with self._lock, np.errstate(over="ignore"):  # beyond float32: +-inf, not an error
+            ages = self.belief.age_at(at).astype(np.float32)
+            version, stamp = self.version, self.belief.stamp
+        return GridRead(ages, version, stamp if at is None else at)
+
     def updates_since(self, version: int) -> tuple[int, float, list[Patch] | None]:
         """(current version, its stamp [s], patches since ``version`` or None when a full
         read is due)."""

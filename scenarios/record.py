@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapserver.geometry import GridGeometry
+from mapserver.scan import PoseStd
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ class GridSample:
 @dataclass(frozen=True)
 class ScanSample:
     """A LiDAR scan as posted: the pose it was sent with and its ranges [m] (float32;
-    inf = no return, NaN = invalid)."""
+    inf = no return, NaN = invalid), and the ``pose_std`` it was sent with (None: none)."""
 
     stamp: float
     unit_id: str
@@ -106,6 +107,7 @@ class ScanSample:
     range_min: float
     range_max: float
     ranges: np.ndarray
+    pose_std: PoseStd | None = None
 
 
 @dataclass(frozen=True)
@@ -149,7 +151,8 @@ class FreezeRecord:
 
 @dataclass
 class RunRecord:
-    """A whole run: identity, the map's geometry, and the streams above."""
+    """A whole run: identity, the map's geometry, the units' body (radius, height [m];
+    None: the fleet's default ``DriveLimits``), and the streams above."""
 
     scenario: str
     policy: str
@@ -164,3 +167,5 @@ class RunRecord:
     freezes: list[FreezeRecord] = field(default_factory=list)
     time_to_clear: dict[str, float | None] = field(default_factory=dict)
     metrics: dict[str, object] = field(default_factory=dict)
+    unit_radius: float | None = None
+    unit_height: float | None = None

@@ -1,7 +1,8 @@
 """``create_app(settings)``: the map server's FastAPI application.
 
 The app owns one ``MapService`` (created here, restored from its data directory, closed
-at shutdown). Every error reply is ``{"detail": "<field>: <problem>, got <value>"}``.
+at shutdown) and one ``UnitBoard`` (units' poses and paths, in memory), and serves the
+live viewer at ``/``. Every error reply is ``{"detail": "<field>: <problem>, got <value>"}``.
 """
 
 from __future__ import annotations
@@ -17,9 +18,18 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from mapserver.api import routes_maps, routes_ops, routes_plan, routes_query, routes_scans
+from mapserver.api import (
+    routes_maps,
+    routes_ops,
+    routes_plan,
+    routes_query,
+    routes_scans,
+    routes_units,
+    routes_viewer,
+)
 from mapserver.api.metrics import ServerMetrics
-from mapserver.api.schemas import ScanBatchIn, ScanIn
+from mapserver.api.schemas import ScanBatchIn, ScanIn, UnitsIn
+from mapserver.api.unit_board import UnitBoard
 from mapserver.service import MapService
 from mapserver.settings import Settings
 
@@ -43,8 +53,10 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.service = service
     app.state.metrics = ServerMetrics(service)
     app.state.token_roles = settings.token_roles()
-    for router in (routes_scans, routes_maps, routes_query, routes_plan, routes_ops):
-        app.include_router(router.router)
+    app.state.units = UnitBoard()
+    routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
+    for module in (*routers, routes_viewer):
+        app.include_router(module.router)
     _add_body_schemas(app)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
@@ -53,14 +65,14 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
 
 
 def _add_body_schemas(app: FastAPI) -> None:
-    """Publish the scan body models the scan routes reference (they read raw JSON)."""
+    """Publish the body models of the routes that read raw JSON (scans, units)."""
     build = app.openapi
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
             schema = build()
             components = schema.setdefault("components", {}).setdefault("schemas", {})
-            for model in (ScanIn, ScanBatchIn):
+            for model in (ScanIn, ScanBatchIn, UnitsIn):
                 model_schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
                 components.update(model_schema.pop("$defs", {}))
                 components[model.__name__] = model_schema

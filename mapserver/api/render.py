@@ -46,8 +46,29 @@ def grid_response(
         image.save(buffer, format="PNG")
         headers = raw_headers(read, geometry)
         return Response(buffer.getvalue(), media_type="image/png", headers=headers)
-    info = dict(meta, version=read.version, stamp=read.stamp if math.isfinite(read.stamp) else None)
-    return JSONResponse({"info": info, "data": read.data.ravel().tolist()})
+    return JSONResponse({"info": _info(meta, read), "data": read.data.ravel().tolist()})
+
+
+def age_response(
+    fmt: str, read: GridRead, geometry: GridGeometry, meta: dict[str, Any]
+) -> Response:
+    """Render evidence ages [s] (float32, NaN never observed) as json (null for NaN) or
+    raw little-endian float32 bytes with the X-Map-* headers."""
+    ages = np.ascontiguousarray(read.data, dtype="<f4")
+    if fmt == "raw":
+        return Response(
+            ages.tobytes(),
+            media_type="application/octet-stream",
+            headers=raw_headers(read, geometry),
+        )
+    # null: never observed (NaN); also an age beyond float32's range (an absurd ``at``)
+    values = [v if math.isfinite(v) else None for v in ages.ravel().tolist()]
+    return JSONResponse({"info": _info(meta, read), "data": values})
+
+
+def _info(meta: dict[str, Any], read: GridRead) -> dict[str, Any]:
+    """The metadata of a json grid reply: the map's, at the read's version and stamp."""
+    return dict(meta, version=read.version, stamp=read.stamp if math.isfinite(read.stamp) else None)
 
 
 def cost_palette() -> np.ndarray:

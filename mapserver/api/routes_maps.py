@@ -8,12 +8,20 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Query, Request, Response
 
 from mapserver.api.auth import READ, require
-from mapserver.api.render import cost_palette, grid_response, occupancy_palette
-from mapserver.api.schemas import CostmapUpdates, ErrorOut, GridJson, MapMeta, PatchOut
+from mapserver.api.render import age_response, cost_palette, grid_response, occupancy_palette
+from mapserver.api.schemas import (
+    AgeGridJson,
+    CostmapUpdates,
+    ErrorOut,
+    GridJson,
+    MapMeta,
+    PatchOut,
+)
 
 router = APIRouter(tags=["map"], dependencies=[Depends(require(READ))])
 
 Format = Literal["json", "raw", "png"]
+AgeFormat = Literal["json", "raw"]
 GRID_RESPONSES = {
     200: {
         "model": GridJson,
@@ -24,8 +32,20 @@ GRID_RESPONSES = {
     403: {"model": ErrorOut},
     422: {"model": ErrorOut},
 }
+AGE_RESPONSES = {
+    200: {
+        "model": AgeGridJson,
+        "content": {"application/octet-stream": {}},
+        "description": "json: {info, data} (null: never observed); raw: little-endian float32 "
+        "ages [s] row-major (NaN: never observed) with X-Map-* headers",
+    },
+    401: {"model": ErrorOut},
+    403: {"model": ErrorOut},
+    422: {"model": ErrorOut},
+}
 AT = Query(None, allow_inf_nan=False, description="[s] evaluate decay at this stamp")
 FORMAT = Query("json", description="json, raw or png")
+AGE_FORMAT = Query("json", description="json or raw")
 COST_PALETTE = cost_palette()
 OCCUPANCY_PALETTE = occupancy_palette()
 
@@ -49,6 +69,18 @@ def get_costmap(request: Request, format: Format = FORMAT, at: float | None = AT
     service = request.app.state.service
     read = service.costmap_read(at)
     return grid_response(format, read, service.geometry, service.meta(), COST_PALETTE)
+
+
+@router.get("/v1/map/age", responses=AGE_RESPONSES, response_class=Response)
+def get_map_age(
+    request: Request,
+    format: AgeFormat = AGE_FORMAT,
+    at: float | None = AT,
+) -> Response:
+    """Evidence age [s] per cell at the map's stamp (or ``at``): ``stamp - last_observed``,
+    NaN (raw) or null (json) where a cell was never observed."""
+    service = request.app.state.service
+    return age_response(format, service.age_read(at), service.geometry, service.meta())
 
 
 @router.get(

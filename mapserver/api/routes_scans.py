@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import asyncio
-import json
 from typing import Any
 
-import orjson
 from fastapi import APIRouter, Depends, HTTPException, Request
 
 from mapserver.api.auth import WRITE, require
+from mapserver.api.body import body_schema, read_json
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.scan import Scan, ScanError
 from mapserver.service import IngestError, MapService
@@ -17,34 +16,6 @@ from mapserver.service import IngestError, MapService
 router = APIRouter(tags=["scans"])
 
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 503)}
-
-
-def _body_schema(model: type) -> dict[str, Any]:
-    schema = {"$ref": f"#/components/schemas/{model.__name__}"}
-    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
-
-
-async def read_json(request: Request) -> Any:
-    """The request's JSON body, refused (413) past ``limits.max_body_bytes``."""
-    limit = request.app.state.settings.limits.max_body_bytes
-    declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise HTTPException(413, f"body: at most {limit} bytes, got {declared}")
-    chunks, size = [], 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > limit:
-            raise HTTPException(413, f"body: at most {limit} bytes, got more")
-        chunks.append(chunk)
-    raw = b"".join(chunks)
-    try:
-        return orjson.loads(raw)  # strict JSON, ten times faster than json on 1080 floats
-    except orjson.JSONDecodeError:
-        pass
-    try:
-        return json.loads(raw)  # also reads Infinity and NaN, which the contract allows
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise HTTPException(400, f"body: not valid JSON ({exc})") from None
 
 
 def _parse(item: Any, prefix: str, max_beams: int) -> Scan:
@@ -70,7 +41,7 @@ async def _submit(request: Request, scans: list[Scan], bodies: list[dict]) -> li
     "/v1/scans",
     response_model=ScanAck,
     responses=ERRORS,
-    openapi_extra=_body_schema(ScanIn),
+    openapi_extra=body_schema(ScanIn),
     dependencies=[Depends(require(WRITE))],
     summary="Post one scan; durable once acknowledged",
 )
@@ -85,7 +56,7 @@ async def post_scan(request: Request) -> ScanAck:
     "/v1/scans/batch",
     response_model=ScanBatchAck,
     responses=ERRORS,
-    openapi_extra=_body_schema(ScanBatchIn),
+    openapi_extra=body_schema(ScanBatchIn),
     dependencies=[Depends(require(WRITE))],
     summary="Post several scans; all are accepted or none",
 )

@@ -8,10 +8,14 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 MAX_QUERY_ITEMS = 100_000
+MAX_UNITS_PER_POST = 1024
+MAX_PATH_POINTS = 10_000
+MAX_UNIT_ID_CHARS = 64
+MAX_REASON_CHARS = 200
 
 
 class PoseIn(BaseModel):
@@ -84,6 +88,14 @@ class MapMeta(BaseModel):
 class GridJson(BaseModel):
     info: MapMeta
     data: list[int] = Field(description="row-major, row 0 at the origin's y")
+
+
+class AgeGridJson(BaseModel):
+    info: MapMeta
+    data: list[float | None] = Field(
+        description="[s] evidence age per cell, row-major, row 0 at the origin's y; "
+        "null where never observed"
+    )
 
 
 class PatchOut(BaseModel):
@@ -161,3 +173,48 @@ class PlanOut(BaseModel):
     expanded: int
     planning_ms: float
     map_version: int
+
+
+class _StrictModel(BaseModel):
+    """Validated as sent: no extra fields, no coercion (a number is not a string)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class UnitPose(_StrictModel):
+    x: Finite = Field(description="[m] unit centre in the map frame")
+    y: Finite = Field(description="[m] unit centre in the map frame")
+    yaw: Finite = Field(description="[rad] heading, counter-clockwise from +x")
+
+
+Point = Annotated[list[Finite], Field(min_length=2, max_length=2, description="[x, y] [m]")]
+
+
+class UnitState(_StrictModel):
+    """A unit as its fleet last published it (a project extension, for the viewer)."""
+
+    unit_id: str = Field(min_length=1, max_length=MAX_UNIT_ID_CHARS)
+    stamp: Finite = Field(description="[s] time of this state, as scan stamps")
+    pose: UnitPose
+    path: list[Point] = Field(
+        default_factory=list,
+        max_length=MAX_PATH_POINTS,
+        description="the unit's planned path [[x, y], ...] [m], empty when it has none",
+    )
+    frozen: bool = Field(False, description="no admissible path or lane: the unit waits")
+    reason: str | None = Field(
+        None, max_length=MAX_REASON_CHARS, description="why the unit is frozen or waits"
+    )
+
+
+class UnitsIn(_StrictModel):
+    units: list[UnitState] = Field(min_length=1, max_length=MAX_UNITS_PER_POST)
+
+
+class UnitsAck(BaseModel):
+    accepted: int = Field(description="unit states taken from this post")
+    tracked: int = Field(description="units the server now holds a state for")
+
+
+class UnitsOut(BaseModel):
+    units: list[UnitState] = Field(description="the latest state of each unit, by unit_id")

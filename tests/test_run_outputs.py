@@ -1,0 +1,443 @@
+"""The writers of a scenario run's outputs: freezes.json, report.png and replay.mcap
+(CONTRACT 3), from a small RunRecord made by hand."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from PIL import Image
+
+from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.geometry import GridGeometry
+from mapserver.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
+from scenarios.foxglove_messages import decode_ranges, encode_ranges
+from scenarios.foxglove_schemas import SCHEMAS
+from scenarios.freezes_json import write_freezes
+from scenarios.record import (
+    BlockingCell,
+    EventRecord,
+    FreezeRecord,
+    GridSample,
+    ObjectsSample,
+    ObjectState,
+    PlanSample,
+    RecoveryStep,
+    RunRecord,
+    ScanSample,
+    UnitSample,
+)
+from scenarios.replay_mcap import ReplayFileError, read_geometry, read_scans, write_replay
+from scenarios.report import title, write_report
+
+GEOMETRY = GridGeometry(width=40, height=30, resolution=0.25, origin_x=-1.0, origin_y=-0.5)
+UNITS = ("u1", "u2", "u10")
+INF, NAN = math.inf, math.nan
+
+
+def _scan(unit: str, stamp: float, ranges, yaw: float = 0.3, std: PoseStd | None = None):
+    return ScanSample(
+        stamp=stamp,
+        unit_id=unit,
+        x=1.5 + stamp / 10,
+        y=2.25,
+        yaw=yaw,
+        angle_min=-1.5,
+        angle_increment=0.5,
+        range_min=0.1,
+        range_max=8.0,
+        ranges=np.asarray(ranges, dtype=np.float32),
+        pose_std=std,
+    )
+
+
+def _grid(stamp: float, version: int) -> GridSample:
+    costs = np.full(GEOMETRY.shape, FREE, dtype=np.uint8)
+    costs[:5, :] = UNKNOWN
+    costs[10:12, 20:24] = LETHAL
+    costs[9, 20:24] = INSCRIBED
+    costs[8, 20:24] = 120 + version
+    occupancy = np.where(costs == UNKNOWN, -1, np.where(costs == LETHAL, 100, 0)).astype(np.int8)
+    return GridSample(stamp, version, costs, occupancy)
+
+
+def make_record() -> RunRecord:
+    """Three units for 10 s, two object samples (a pod removed, a tote dropped), three
+    grids, seven scans (two units), three plans (one stale-free), three events and two
+    freezes: u1 phantom, u2 true block."""
+    record = RunRecord("moved_pod", "sticky", 7, GEOMETRY, unit_radius=0.35, unit_height=0.5)
+    for i in range(21):
+        t = i * 0.5
+        for k, unit in enumerate(UNITS):
+            frozen = unit == "u1" and 3.5 <= t < 6.0
+            record.units.append(
+                UnitSample(t, unit, 1.0 + k + t / 5, 2.0 + k, 0.1 * k, not frozen, frozen, "pick")
+            )
+    pod = ObjectState("p1", "pod", 4.0, 3.0, 1.0, 1.0, 0.0, 2.0, False)
+    person = ObjectState("h1", "person", 6.0, 1.0, 0.5, 0.5, 0.0, 1.7, True)
+    tote = ObjectState("t1", "tote", 2.0, 5.0, 0.4, 0.6, 0.5, 0.3, False)
+    record.objects += [ObjectsSample(0.0, (pod, person)), ObjectsSample(3.0, (person, tote))]
+    record.grids += [_grid(0.0, 1), _grid(5.0, 2), _grid(10.0, 3)]
+    std = PoseStd(xy=0.05, yaw=0.01)
+    record.scans += [
+        _scan("u1", 0.5, [1.0, INF, NAN, 2.5, 7.99], std=std),
+        _scan("u1", 1.0, [1.2345678, 1.0, 9.5, -INF, 0.05], yaw=3.1, std=std),
+        _scan("u1", 9.5, [0.5, 0.6, 0.7, 0.8, 0.9], yaw=-2.0, std=std),
+        _scan("u2", 0.5, [INF] * 5),
+        _scan("u2", 2.0, [3.0, 3.0, NAN, NAN, 3.0], yaw=4.0),
+        _scan("u2", 6.0, [2.0, 2.0, 2.0, 2.0, 2.0]),
+        _scan("u2", 7.25, [1.0, 1.0, 1.0, 1.0, 1.0]),
+    ]
+    record.plans += [
+        PlanSample(1.0, "u1", ((1.0, 2.0), (2.0, 2.0), (3.0, 3.0))),
+        PlanSample(2.5, "u2", ((2.0, 3.0), (4.0, 3.0)), stale_cells=((4.0, 3.0),)),
+        PlanSample(4.0, "u1", ()),
+    ]
+    record.events += [
+        EventRecord(2.0, "drop", "t1", 2.0, 5.0, "a tote falls into aisle A"),
+        EventRecord(3.0, "remove", "p1", 4.0, 3.0, "pod p1 is taken away"),
+        EventRecord(4.0, "person", "h1", 6.0, 1.0, "a person crosses"),
+    ]
+    record.freezes += [
+        FreezeRecord(
+            "u2",
+            5.0,
+            1.5,
+            False,
+            "tote in the aisle",
+            3.0,
+            4.0,
+            (BlockingCell(2.125, 4.875, True, 0.97, 4.75, (("u2", 4.75),)),),
+            (RecoveryStep(5.5, "wait", "path blocked"),),
+        ),
+        FreezeRecord(
+            "u1",
+            3.5,
+            2.5,
+            True,
+            "no admissible path",
+            1.7,
+            2.0,
+            (
+                BlockingCell(4.125, 3.125, False, 0.912345678, 2.9, (("u1", 2.9), ("u2", 2.0))),
+                BlockingCell(4.375, 3.125, False, None, None, ()),
+            ),
+            (
+                RecoveryStep(4.0, "turn_in_place", "look again"),
+                RecoveryStep(5.0, "replan", "still blocked"),
+            ),
+        ),
+    ]
+    record.time_to_clear = {"p1": 2.25, "p9": None}
+    record.metrics = {
+        "phantom_freezes": 1,
+        "phantom_freeze_seconds": 2.5,
+        "true_block_freezes": 1,
+        "stale_free_plans": 1,
+        "collisions": 0,
+        "tasks_completed": 4,
+        "sim_seconds": 10.0,
+    }
+    return record
+
+
+@pytest.fixture(scope="module")
+def record() -> RunRecord:
+    return make_record()
+
+
+@pytest.fixture(scope="module")
+def replay(record, tmp_path_factory) -> Path:
+    return write_replay(record, tmp_path_factory.mktemp("run") / "replay.mcap")
+
+
+# ------------------------------------------------------------------------------ freezes.json
+def test_freezes_json_lists_every_freeze_with_its_evidence_in_start_order(record, tmp_path):
+    path = write_freezes(record, tmp_path / "freezes.json")
+    freezes = json.loads(path.read_text())
+    assert [f["unit"] for f in freezes] == ["u1", "u2"]
+    phantom = freezes[0]
+    assert list(phantom) == [
+        "unit",
+        "start",
+        "duration",
+        "phantom",
+        "true_block",
+        "reason",
+        "position",
+        "blocking_cells",
+        "recovery",
+    ]
+    assert (phantom["phantom"], phantom["true_block"]) == (True, False)
+    assert (freezes[1]["phantom"], freezes[1]["true_block"]) == (False, True)
+    assert phantom["start"] == 3.5 and phantom["duration"] == 2.5
+    assert phantom["position"] == {"x": 1.7, "y": 2.0}
+    cell, unseen = phantom["blocking_cells"]
+    assert list(cell) == ["x", "y", "truly_occupied", "p_occ", "last_observed", "marked_by"]
+    assert cell["truly_occupied"] is False
+    assert cell["p_occ"] == 0.9123  # rounded to 1e-4
+    assert cell["marked_by"] == [{"unit": "u1", "stamp": 2.9}, {"unit": "u2", "stamp": 2.0}]
+    assert unseen["p_occ"] is None and unseen["last_observed"] is None
+    assert phantom["recovery"] == [
+        {"stamp": 4.0, "action": "turn_in_place", "cause": "look again"},
+        {"stamp": 5.0, "action": "replan", "cause": "still blocked"},
+    ]
+
+
+def test_freezes_json_replaces_the_old_file_and_leaves_no_temporary(record, tmp_path):
+    path = tmp_path / "freezes.json"
+    path.write_text("old")
+    write_freezes(record, path)
+    assert json.loads(path.read_text())
+    assert [p.name for p in tmp_path.iterdir()] == ["freezes.json"]
+
+
+def test_freezes_json_of_a_run_without_freezes_is_an_empty_list(tmp_path):
+    path = write_freezes(RunRecord("static_shift", "decay", 1, GEOMETRY), tmp_path / "f.json")
+    assert json.loads(path.read_text()) == []
+
+
+# ------------------------------------------------------------------------------ report.png
+def test_report_is_a_1600_by_900_png(record, tmp_path):
+    path = write_report(record, tmp_path / "report.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with Image.open(path) as image:
+        assert image.size == (1600, 900)
+        pixels = np.asarray(image.convert("RGB"))
+    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50  # a picture, not a blank page
+
+
+def test_report_title_names_the_run_and_its_key_metrics(record):
+    head, metrics = title(record).split("\n")
+    assert head == "moved_pod  |  policy sticky  |  seed 7"
+    assert "phantom freezes 1" in metrics and "phantom freeze time 2.5 s" in metrics
+    assert "stale-free plans 1" in metrics and "tasks done 4" in metrics
+
+
+def test_report_of_a_run_with_nothing_recorded_still_draws(tmp_path):
+    path = write_report(RunRecord("static_shift", "decay", 1, GEOMETRY), tmp_path / "r.png")
+    with Image.open(path) as image:
+        assert image.size == (1600, 900)
+
+
+# ------------------------------------------------------------------------------ replay.mcap
+def _read_all(path: Path):
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        messages = [
+            (schema, channel, message, json.loads(message.data))
+            for schema, channel, message in reader.iter_messages(log_time_order=False)
+        ]
+    return summary, messages
+
+
+def test_replay_holds_every_channel_with_its_foxglove_schema_and_count(record, replay):
+    summary, messages = _read_all(replay)
+    schema_of = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+    assert schema_of == {
+        "/units/u1/scan": "foxglove.LaserScan",
+        "/units/u2/scan": "foxglove.LaserScan",
+        "/units/u1/plan": "foxglove.PosesInFrame",
+        "/units/u2/plan": "foxglove.PosesInFrame",
+        "/map/occupancy": "foxglove.Grid",
+        "/map/costmap": "foxglove.Grid",
+        "/scene": "foxglove.SceneUpdate",
+        "/log": "foxglove.Log",
+    }
+    counts = Counter(channel.topic for _, channel, _, _ in messages)
+    assert counts == {
+        "/units/u1/scan": 3,
+        "/units/u2/scan": 4,
+        "/units/u1/plan": 2,
+        "/units/u2/plan": 1,
+        "/map/occupancy": 3,
+        "/map/costmap": 3,
+        "/scene": 21 + 2,  # one update per unit-sample stamp, one per objects sample
+        "/log": 3 + 2 + 3 + 1,  # events, freezes, recovery steps, stale-free plans
+    }
+    for schema in summary.schemas.values():
+        assert schema.encoding == "jsonschema"
+        assert json.loads(schema.data) == SCHEMAS[schema.name]
+    assert {ch.message_encoding for ch in summary.channels.values()} == {"json"}
+
+
+def test_replay_messages_are_valid_for_their_schemas_and_in_time_order(replay):
+    _, messages = _read_all(replay)
+    for schema, channel, _, data in messages:
+        _check(data, SCHEMAS[schema.name], channel.topic)
+    log_times = [message.log_time for _, _, message, _ in messages]
+    assert log_times == sorted(log_times)
+
+
+def test_replay_timestamps_are_sim_time_in_nanoseconds(replay):
+    _, messages = _read_all(replay)
+    scans = [(m, d) for _, ch, m, d in messages if ch.topic == "/units/u2/scan"]
+    assert [m.log_time for m, _ in scans] == [
+        500_000_000,
+        2_000_000_000,
+        6_000_000_000,
+        7_250_000_000,
+    ]
+    assert scans[-1][1]["timestamp"] == {"sec": 7, "nsec": 250_000_000}
+
+
+def test_replay_grids_hold_the_recorded_arrays_at_the_map_origin(record, replay):
+    _, messages = _read_all(replay)
+    grids = {ch.topic: d for _, ch, _, d in messages if ch.topic.startswith("/map/")}
+    last = record.grids[-1]
+    for topic, array, field, numeric_type in (
+        ("/map/costmap", last.costs, "cost", 1),  # UINT8
+        ("/map/occupancy", last.occupancy, "occupancy", 2),  # INT8
+    ):
+        message = grids[topic]
+        data = np.frombuffer(base64.b64decode(message["data"]), dtype=array.dtype)
+        assert np.array_equal(data.reshape(GEOMETRY.shape), array)
+        assert message["fields"] == [{"name": field, "offset": 0, "type": numeric_type}]
+        assert message["column_count"] == 40 and message["row_stride"] == 40
+        assert message["cell_stride"] == 1
+        assert message["cell_size"] == {"x": 0.25, "y": 0.25}
+        assert message["pose"]["position"] == {"x": -1.0, "y": -0.5, "z": 0.0}
+        assert message["frame_id"] == "map"
+
+
+def test_replay_scene_shows_units_as_cylinders_and_deletes_removed_objects(replay):
+    _, messages = _read_all(replay)
+    updates = [d for _, ch, _, d in messages if ch.topic == "/scene"]
+    first_units = next(u for u in updates if u["entities"][0]["id"].startswith("unit/"))
+    assert [e["id"] for e in first_units["entities"]] == ["unit/u1", "unit/u2", "unit/u10"]
+    cylinder = first_units["entities"][0]["cylinders"][0]
+    assert cylinder["size"] == {"x": 0.7, "y": 0.7, "z": 0.5}
+    objects = [u for u in updates if u["entities"] and u["entities"][0]["id"].startswith("object/")]
+    assert [[e["id"] for e in u["entities"]] for u in objects] == [
+        ["object/p1", "object/h1"],
+        ["object/h1", "object/t1"],
+    ]
+    assert objects[0]["entities"][0]["cubes"][0]["size"] == {"x": 1.0, "y": 1.0, "z": 2.0}
+    assert objects[0]["entities"][1]["cylinders"][0]["size"] == {"x": 0.5, "y": 0.5, "z": 1.7}
+    assert [(d["id"], d["type"]) for d in objects[1]["deletions"]] == [("object/p1", 0)]
+
+
+def test_replay_log_explains_each_freeze(replay):
+    _, messages = _read_all(replay)
+    logs = [d for _, ch, _, d in messages if ch.topic == "/log"]
+    phantom = next(d for d in logs if "PHANTOM" in d["message"])
+    assert phantom["name"] == "u1" and phantom["level"] == 3  # WARNING
+    assert phantom["timestamp"] == {"sec": 3, "nsec": 500_000_000}
+    assert "(4.12, 3.12) truth free, p_occ 0.91" in phantom["message"]
+    assert "marked by u1@2.90, u2@2.00" in phantom["message"]
+    assert "turn_in_place at 4.00 s" in phantom["message"]
+    true_block = next(d for d in logs if "true-block" in d["message"])
+    assert true_block["name"] == "u2" and true_block["level"] == 2  # INFO
+    assert "truth occupied" in true_block["message"]
+
+
+def test_plans_become_poses_heading_along_the_path(replay):
+    _, messages = _read_all(replay)
+    plans = [d for _, ch, _, d in messages if ch.topic == "/units/u1/plan"]
+    poses = plans[0]["poses"]
+    assert [(p["position"]["x"], p["position"]["y"]) for p in poses] == [(1, 2), (2, 2), (3, 3)]
+    q = poses[1]["orientation"]
+    assert 2 * math.atan2(q["z"], q["w"]) == pytest.approx(math.pi / 4)
+    assert plans[1]["poses"] == []  # no path: the drawn one is cleared
+
+
+# ------------------------------------------------------------------------------ read_scans
+def test_read_scans_gives_back_the_scans_written(record, replay):
+    scans = read_scans(replay)
+    written = sorted(record.scans, key=lambda s: s.stamp)
+    assert [(s.unit_id, s.stamp) for s in scans] == [(w.unit_id, w.stamp) for w in written]
+    for scan, w in zip(scans, written, strict=True):
+        assert (scan.pose.x, scan.pose.y) == (w.x, w.y)
+        assert scan.pose.yaw == pytest.approx(math.remainder(w.yaw, math.tau), abs=1e-12)
+        assert (scan.angle_min, scan.angle_increment) == (w.angle_min, w.angle_increment)
+        assert (scan.range_min, scan.range_max) == (w.range_min, w.range_max)
+        assert scan.frame == "map"
+        assert scan.pose_std == w.pose_std
+        # REP 117 classes survive: returns exact, +inf no return, NaN and -inf invalid (NaN).
+        expected = w.ranges.astype(np.float64)
+        expected[np.isneginf(expected)] = NAN
+        np.testing.assert_array_equal(scan.ranges, expected)
+        assert np.array_equal(
+            classify_ranges(scan.ranges, scan.range_min, scan.range_max),
+            classify_ranges(w.ranges, w.range_min, w.range_max),
+        )
+
+
+def test_read_scans_until_leaves_out_later_scans(replay):
+    assert [s.stamp for s in read_scans(replay, until=2.0)] == [0.5, 0.5, 1.0, 2.0]
+
+
+def test_ranges_encoding_is_strict_json_and_keeps_rep117_classes():
+    ranges = np.array([1.5, INF, NAN, -INF, 30.0, 0.01], dtype=np.float32)
+    encoded = encode_ranges(ranges)
+    assert np.isfinite(encoded).all()
+    assert json.loads(json.dumps(encoded.tolist(), allow_nan=False))
+    decoded = decode_ranges(encoded.tolist())
+    assert classify_ranges(decoded, 0.05, 20.0).tolist() == [
+        BEAM_RETURN,
+        BEAM_NO_RETURN,
+        BEAM_INVALID,
+        BEAM_INVALID,
+        BEAM_NO_RETURN,
+        BEAM_INVALID,
+    ]
+    assert decoded[1] == INF and math.isnan(decoded[2]) and math.isnan(decoded[3])
+
+
+def test_read_geometry_gives_the_map_grid(replay):
+    assert read_geometry(replay) == GEOMETRY
+
+
+def test_reading_a_file_that_is_not_a_replay_names_it(tmp_path):
+    bad = tmp_path / "replay.mcap"
+    bad.write_bytes(b"not an mcap file")
+    with pytest.raises(ReplayFileError, match="replay.mcap"):
+        read_scans(bad)
+    with pytest.raises(ReplayFileError, match="missing.mcap"):
+        read_scans(tmp_path / "missing.mcap")
+
+
+def test_a_bad_stamp_fails_the_write_and_leaves_no_file(tmp_path):
+    record = RunRecord("x", "decay", 1, GEOMETRY)
+    record.units.append(UnitSample(-1.0, "u1", 0.0, 0.0, 0.0, False, False, None))
+    with pytest.raises(ValueError, match="stamp"):
+        write_replay(record, tmp_path / "replay.mcap")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------ helpers
+def _check(value, schema: dict, where: str) -> None:
+    """``value`` conforms to the JSON schema ``schema`` (the subset Foxglove's use):
+    required and no unknown properties, types, enums (oneOf const), bounds."""
+    if "oneOf" in schema:
+        assert value in [option["const"] for option in schema["oneOf"]], where
+        return
+    kind = schema["type"]
+    if kind == "object":
+        assert isinstance(value, dict), where
+        assert set(value) <= set(schema["properties"]), f"{where}: {set(value)}"
+        assert set(schema.get("required", ())) <= set(value), f"{where}: {set(value)}"
+        for key, item in value.items():
+            _check(item, schema["properties"][key], f"{where}.{key}")
+    elif kind == "array":
+        assert isinstance(value, list), where
+        for i, item in enumerate(value):
+            _check(item, schema["items"], f"{where}[{i}]")
+    else:
+        python_types = {
+            "number": (int, float),
+            "integer": (int,),
+            "string": (str,),
+            "boolean": (bool,),
+        }[kind]
+        assert isinstance(value, python_types), f"{where}: {value!r} is not {kind}"
+        assert kind == "boolean" or not isinstance(value, bool), where
+        assert value >= schema.get("minimum", value), where
+        assert value <= schema.get("maximum", value), where

@@ -1,0 +1,171 @@
+"""The live viewer in headless Chromium against a real ``fleetmap serve`` on loopback.
+
+Chromium is driven over the DevTools protocol (``browser_helpers``). The server runs with
+tokens, so the page gets its reader token from the URL fragment (or a prompt). Pixels are
+read from the page's canvas at a cell's centre (``fleetmapViewer.pixelAt``) and compared
+with the palette the server's PNG replies use.
+"""
+
+import json
+import os
+
+import httpx
+import numpy as np
+import pytest
+from browser_helpers import Browser, find_chromium
+from server_helpers import ServerProcess, scan_body
+
+from mapserver.api.render import cost_palette, occupancy_palette
+from mapserver.client import MapClient, UnitState
+from mapserver.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.scan import Pose2D
+
+UNIT, READER = "unit-token", "reader-token"
+LETHAL_CELL = (80, 50)  # (col, row): where scan_body's beams from (5, 5) end, at x = 8.05
+FREE_CELL = (60, 50)  # crossed by three scans' beams, two metres from any return
+UNKNOWN_CELL = (250, 20)  # never observed
+NEW_CELL = (230, 150)  # the return, at x = 23.05, of a scan posted from (20, 15) later
+
+
+def rgba(palette: np.ndarray, value: int) -> list[int]:
+    return [*palette[value].tolist(), 255]
+
+
+@pytest.fixture(scope="module")
+def chromium():
+    executable = find_chromium()
+    if executable is None:
+        message = "chromium not found: apt-get install chromium, or set FLEETMAP_CHROMIUM"
+        if os.environ.get("CI"):
+            pytest.fail(message)  # CI installs it (.ci/run): its absence is a broken CI
+        pytest.skip(message)
+    return executable
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("viewer-server")
+    config = folder / "server.yaml"
+    tokens = [{"token": UNIT, "role": "unit"}, {"token": READER, "role": "reader"}]
+    config.write_text(json.dumps({"tokens": tokens}))
+    process = ServerProcess(folder / "data", config=config)
+    with httpx.Client(base_url=process.url) as http:
+        writer = MapClient(http, token=UNIT)
+        for stamp in (1.0, 2.0, 3.0):
+            writer.post_scan(scan_body(stamp=stamp))
+        yield process, http
+    process.stop()
+
+
+@pytest.fixture(scope="module")
+def page(chromium, server, tmp_path_factory):
+    process, _ = server
+    browser = Browser(chromium, tmp_path_factory.mktemp("chromium-profile"))
+    try:
+        browser.open(f"{process.url}/#token={READER}")
+        browser.evaluate("fleetmapViewer.ready.then(() => true)")
+        yield browser
+    finally:
+        browser.close()
+
+
+def server_grid(http, path, dtype):
+    reply = http.get(path, params={"format": "raw"}, headers={"Authorization": f"Bearer {READER}"})
+    return np.frombuffer(reply.content, dtype=dtype).reshape(200, 300)
+
+
+def pixel(page, cell) -> list[int]:
+    return page.evaluate(f"fleetmapViewer.pixelAt({cell[0]}, {cell[1]})")
+
+
+def near(drawn: list[int], colour: list[int], tolerance: int = 3) -> bool:
+    """A shape's pixel is its colour up to the canvas's rounding (map cells are exact)."""
+    rgb = drawn[:3]
+    return drawn[3] == 255 and all(
+        abs(a - b) <= tolerance for a, b in zip(rgb, colour, strict=True)
+    )
+
+
+def test_the_page_loads_without_console_errors_and_hides_the_token(page):
+    assert page.wait_for("fleetmapViewer.version === 3")
+    assert page.console_errors() == []
+    assert page.evaluate("location.hash") == ""  # the token left the address bar
+    assert page.evaluate("document.querySelector('.meta-resolution').textContent") == "0.1 m/cell"
+    assert page.evaluate("document.querySelector('.meta-policy').textContent") == "decay"
+
+
+def test_the_costmap_shows_lethal_free_and_unknown_cells_in_their_colours(page, server):
+    costs = server_grid(server[1], "/v1/costmap", np.uint8)
+    palette = cost_palette()
+    for (col, row), value in ((LETHAL_CELL, LETHAL), (FREE_CELL, FREE), (UNKNOWN_CELL, UNKNOWN)):
+        assert costs[row, col] == value
+        assert pixel(page, (col, row)) == rgba(palette, value)
+
+
+def test_a_new_scan_appears_without_a_reload(page, server):
+    process, http = server
+    page.evaluate("window.sameDocument = true")
+    full_reads = page.requested("/v1/costmap?format=raw")
+    updates = page.requested("/v1/costmap/updates")
+    navigations = len(page.named("Page.frameNavigated"))
+    assert pixel(page, NEW_CELL) == rgba(cost_palette(), UNKNOWN)
+    MapClient(http, token=UNIT).post_scan(scan_body(stamp=4.0, unit="u2", x=20.0, y=15.0))
+    lethal = rgba(cost_palette(), LETHAL)
+    drawn = f"fleetmapViewer.pixelAt({NEW_CELL[0]}, {NEW_CELL[1]}).join()"
+    page.wait_for(f"{drawn} === '{','.join(map(str, lethal))}'")
+    assert page.requested("/v1/costmap?format=raw") == full_reads == 1
+    assert page.requested("/v1/costmap/updates") > updates
+    assert page.evaluate("window.sameDocument === true && fleetmapViewer.stats.patchesApplied > 0")
+    assert len(page.named("Page.frameNavigated")) == navigations
+    assert page.console_errors() == []
+
+
+def test_units_are_drawn_with_their_paths_and_frozen_units_are_marked(page, server):
+    states = [
+        UnitState("u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05))),
+        UnitState(
+            "u7", 4.0, Pose2D(25.05, 5.05, 1.0), frozen=True, reason="no path: aisle blocked"
+        ),
+    ]
+    MapClient(server[1], token=UNIT).publish_units(states)
+    page.wait_for("document.querySelector('#units li[data-unit=\"u7\"].frozen') !== null")
+    reason = "document.querySelector('#units li[data-unit=\"u7\"] .reason').textContent"
+    assert page.evaluate(reason) == "no path: aisle blocked"
+    colours = page.evaluate("fleetmapViewer.colours")
+    assert near(pixel(page, (250, 50)), colours["frozen"])  # u7's centre
+    assert near(pixel(page, (30, 150)), colours["unit"])  # u1's centre
+    on_path = [pixel(page, (col, 150)) for col in range(60, 90)]  # along u1's dashed path
+    assert any(near(p, colours["path"]) for p in on_path)
+
+
+def test_the_occupancy_and_age_views_show_the_servers_values(page, server):
+    http = server[1]
+    try:
+        page.evaluate("fleetmapViewer.setView('occupancy')")
+        occupancy = server_grid(http, "/v1/map", np.int8)
+        for col, row in (LETHAL_CELL, FREE_CELL, UNKNOWN_CELL):
+            value = int(occupancy[row, col])
+            assert page.evaluate(f"fleetmapViewer.valueAt({col}, {row})") == value
+            assert pixel(page, (col, row)) == rgba(occupancy_palette(), value & 255)
+        page.evaluate("fleetmapViewer.setView('age')")
+        ages = server_grid(http, "/v1/map/age", "<f4")
+        col, row = LETHAL_CELL
+        assert page.evaluate(f"fleetmapViewer.valueAt({col}, {row})") == float(ages[row, col])
+        assert page.evaluate("fleetmapViewer.valueAt(250, 20)") is None  # never observed
+        assert pixel(page, UNKNOWN_CELL) == rgba(cost_palette(), UNKNOWN)
+        assert page.requested("/v1/map/age?format=raw") >= 1
+    finally:
+        page.evaluate("fleetmapViewer.setView('costmap')")
+    assert page.console_errors() == []
+
+
+def test_without_a_token_the_page_asks_for_one_and_sends_it(page, server):
+    process, _ = server
+    page.evaluate("sessionStorage.clear()")
+    page.call("Page.navigate", url=f"{process.url}/")
+    dialog = page.wait_event("Page.javascriptDialogOpening")
+    assert dialog["params"]["type"] == "prompt"
+    page.call("Page.handleJavaScriptDialog", accept=True, promptText=READER)
+    page.evaluate("fleetmapViewer.ready.then(() => true)")
+    assert page.evaluate("sessionStorage.getItem('fleetmap.token')") == READER
+    assert pixel(page, LETHAL_CELL) == rgba(cost_palette(), LETHAL)
