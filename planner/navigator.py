@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mapserver.costvalues import FREE, UNKNOWN
 from mapserver.geometry import GridGeometry
 from mapserver.queries import query_segments
 from planner.grid_search import GridPlanner, PlanResult
@@ -97,6 +98,7 @@ class UnitNavigator:
     planner: GridPlanner
     config: RecoveryConfig = field(default_factory=RecoveryConfig)
     reroute: Callable[[str, Point], Sequence[Point] | None] | None = None
+    footprint_m: float = 0.6  # [m] cleared around the unit before planning (below)
     actions: list[Action] = field(default_factory=list)
     last_plan: PlanResult | None = None  # the latest plan, for scoring (stale-free plans)
 
@@ -135,8 +137,35 @@ class UnitNavigator:
         return self._blocked(stamp, position, target, costs)
 
     def _plan(self, start: Point, goal: Point, costs: np.ndarray) -> PlanResult:
-        self.last_plan = self.planner.plan(costs, start, goal, "astar", self.config.allow_unknown)
+        """Plan on ``costs`` with the unit's own footprint cleared: other units' scans
+        paint its body (and its inflation) into the shared map, and a unit must be able to
+        leave where it stands (as Nav2 clears the robot footprint)."""
+        if not costs.flags.writeable:
+            costs = costs.copy()
+        window, saved = self._clear_footprint(start, costs)
+        try:
+            self.last_plan = self.planner.plan(
+                costs, start, goal, "astar", self.config.allow_unknown
+            )
+        finally:
+            costs[window] = saved
         return self.last_plan
+
+    def _clear_footprint(
+        self, at: Point, costs: np.ndarray
+    ) -> tuple[tuple[slice, slice], np.ndarray]:
+        g = self.geometry
+        reach = int(math.ceil(self.footprint_m / g.resolution))
+        col, row = g.world_to_cell(*at)
+        rows = slice(max(row - reach, 0), min(row + reach + 1, g.height))
+        cols = slice(max(col - reach, 0), min(col + reach + 1, g.width))
+        window = (rows, cols)
+        saved = costs[window].copy()
+        rr, cc = np.ogrid[rows, cols]
+        inside = (rr - row) ** 2 + (cc - col) ** 2 <= reach * reach
+        part = costs[window]
+        part[inside & (part != UNKNOWN)] = FREE
+        return window, saved
 
     def _blocked(self, stamp: float, position: Point, target: Point, costs: np.ndarray) -> Command:
         reason = f"no path to {_fmt(target)}"

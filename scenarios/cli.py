@@ -8,6 +8,7 @@ import sys
 from mapserver.cli_map import add_map_parser
 from mapserver.cli_serve import add_serve_parsers
 from planner.cli_plan import add_plan_parser
+from scenarios.cli_run import add_run_parsers
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -19,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_map_parser(sub)
     add_serve_parsers(sub)
     add_plan_parser(sub)
+    add_run_parsers(sub)
     return parser
 
 

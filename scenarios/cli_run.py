@@ -1,0 +1,128 @@
+"""``fleetmap run`` (one scenario) and ``fleetmap compare`` (one scenario under several
+policies, one table)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from mapserver.sensor_model import Policy
+
+METRICS_FILE = "metrics.json"
+TABLE_COLUMNS = (
+    ("policy", "policy"),
+    ("phantom_freezes", "phantom freezes"),
+    ("phantom_freeze_seconds", "phantom s"),
+    ("true_block_freezes", "true blocks"),
+    ("stale_free_plans", "stale-free plans"),
+    ("collisions", "collisions"),
+    ("time_to_clear_s", "time to clear s"),
+    ("tasks_completed", "tasks"),
+)
+
+
+def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``run`` and ``compare``."""
+    run = subparsers.add_parser(
+        "run",
+        help="run one scenario end to end",
+        description="Run a scenario: simulated units, the shared map, planners; writes "
+        "metrics.json, freezes.json, report.png and replay.mcap to --out.",
+    )
+    run.add_argument("scenario", type=Path, help="scenario YAML (see docs/scenarios.md)")
+    run.add_argument("--policy", choices=[p.value for p in Policy], help="override the map policy")
+    run.add_argument("--seed", type=int, help="override the scenario's seed")
+    run.add_argument("--server", help="URL of a running map server (default: start one)")
+    run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
+    run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
+    run.set_defaults(handler=run_one)
+
+    compare = subparsers.add_parser(
+        "compare",
+        help="run a scenario under several policies and print one table",
+        description="Run a scenario once per policy (same seed) and compare the metrics.",
+    )
+    compare.add_argument("scenario", type=Path, help="scenario YAML")
+    compare.add_argument(
+        "--policies", default="decay,binary,sticky", help="comma-separated (default: all three)"
+    )
+    compare.add_argument("--seed", type=int, help="override the scenario's seed")
+    compare.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder")
+    compare.add_argument("--json", action="store_true", help="print all metrics as JSON last")
+    compare.set_defaults(handler=run_compare)
+
+
+def run_one(args: argparse.Namespace) -> int:
+    from scenarios.execute import ScenarioError, execute
+
+    try:
+        metrics = execute(args.scenario, args.policy, args.seed, args.server, args.out,
+                          progress=_progress_bar(args.scenario.stem))  # fmt: skip
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"\nfleetmap run: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(metrics))
+    else:
+        print(format_table([metrics]))
+        print(f"outputs in {args.out}")
+    return 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from scenarios.execute import ScenarioError, execute
+
+    policies = [p.strip() for p in args.policies.split(",") if p.strip()]
+    try:
+        for policy in policies:
+            Policy.parse(policy)
+        rows = []
+        for policy in policies:
+            out = args.out / policy
+            bar = _progress_bar(f"{args.scenario.stem} {policy}")
+            rows.append(execute(args.scenario, policy, args.seed, None, out, progress=bar))
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"\nfleetmap compare: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_table(rows))
+    if args.json:
+        print(json.dumps(rows))
+    return 0
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of the comparison columns."""
+    cells = [[title for _, title in TABLE_COLUMNS]]
+    for row in rows:
+        cells.append([_cell(row.get(key)) for key, _ in TABLE_COLUMNS])
+    widths = [max(len(r[i]) for r in cells) for i in range(len(TABLE_COLUMNS))]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _cell(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.1f}"
+    if isinstance(value, list):
+        return ",".join("never" if v is None else f"{v:.1f}" for v in value) or "-"
+    return str(value)
+
+
+def _progress_bar(label: str):
+    """A one-line progress bar on stderr (only when it is a terminal)."""
+    if not sys.stderr.isatty():
+        return None
+    width = max(10, min(40, os.get_terminal_size(sys.stderr.fileno()).columns - 40))
+
+    def show(now: float, total: float) -> None:
+        done = min(1.0, now / total) if total > 0 else 1.0
+        bar = "#" * int(done * width)
+        print(f"\r{label} [{bar:<{width}}] {now:6.1f}/{total:.0f} s", end="", file=sys.stderr)
+        if done >= 1.0:
+            print(file=sys.stderr)
+
+    return show

@@ -1,0 +1,50 @@
+"""Load a scenario, run it, write its outputs: ``metrics.json``, ``freezes.json``,
+``report.png`` and ``replay.mcap`` in one folder."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from scenarios.atomic import atomic_output
+from scenarios.freezes_json import write_freezes
+from scenarios.replay_mcap import REPLAY_FILENAME, write_replay
+from scenarios.report import write_report
+from scenarios.runner import Progress, RunOptions, run
+from scenarios.spec import ScenarioError, load_scenario
+
+__all__ = ["ScenarioError", "execute"]
+
+METRICS_FILENAME = "metrics.json"
+FREEZES_FILENAME = "freezes.json"
+REPORT_FILENAME = "report.png"
+TOKEN_ENV = "FLEETMAP_TOKEN"  # bearer token for ``--server`` when it needs one
+
+
+def execute(
+    scenario_path: Path,
+    policy: str | None,
+    seed: int | None,
+    server_url: str | None,
+    out_dir: Path,
+    progress: Progress | None = None,
+    options: RunOptions | None = None,
+) -> dict[str, object]:
+    """Run the scenario at ``scenario_path`` (with ``policy`` and ``seed`` overrides) and
+    write its outputs to ``out_dir``; returns the metrics."""
+    scenario = load_scenario(scenario_path)
+    if policy is not None:
+        scenario = scenario.with_policy(policy)
+    if seed is not None:
+        scenario = scenario.with_seed(seed)
+    token = os.environ.get(TOKEN_ENV) if server_url else None
+    record = run(scenario, server_url, options, progress, token=token)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out / METRICS_FILENAME) as f:
+        f.write((json.dumps(record.metrics, indent=2) + "\n").encode())
+    write_freezes(record, out / FREEZES_FILENAME)
+    write_report(record, out / REPORT_FILENAME)
+    write_replay(record, out / REPLAY_FILENAME)
+    return record.metrics
