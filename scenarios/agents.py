@@ -93,8 +93,11 @@ class TaskAgent:
         """This tick's command for the unit at ``position`` [m] on ``costs``."""
         if now < self.broken_until:
             return AgentState(Command("stop"), self.task is not None, None, (), self.goal)
-        if self.task is None:
-            return AgentState(Command("idle"), False, None, (), None)
+        if self.task is None:  # parked; the coordinator may still move it aside
+            status = self.coordinator.status(self.unit_id)
+            if status.target is None:
+                return AgentState(Command("idle"), False, None, (), None)
+            return self._drive(now, position, costs, status.target, has_task=False)
         if self._dwell_until is not None:
             if now < self._dwell_until:
                 return AgentState(Command("stop"), True, None, (), self.goal)
@@ -109,16 +112,22 @@ class TaskAgent:
             return AgentState(Command("stop"), True, reason, (), self.goal)
         if status.target is None:  # waiting for traffic
             return AgentState(Command("stop"), True, None, (), self.goal)
-        if status.target != self._target:
-            self._target = status.target
-            self.navigator.set_route([self.graph.position(status.target)], now, "lane granted")
+        return self._drive(now, position, costs, status.target, has_task=True)
+
+    def _drive(
+        self, now: float, position: Point, costs: np.ndarray, target: str, has_task: bool
+    ) -> AgentState:
+        """Plan (every ``replan_s``) and drive toward the granted node ``target``."""
+        if target != self._target:
+            self._target = target
+            self.navigator.set_route([self.graph.position(target)], now, "lane granted")
             self._last_plan = -math.inf
         if now - self._last_plan >= self.replan_s or self._command.kind != "follow":
             self._command = self.navigator.step(now, position, costs)
             self._last_plan = now
         command = self._command
-        blocked = command.reason if command.kind in ("stop", "rotate") else None
-        return AgentState(command, True, blocked, command.blocking, self.goal)
+        blocked = command.reason if command.kind in ("stop", "rotate") and has_task else None
+        return AgentState(command, has_task, blocked, command.blocking, self.goal)
 
     def _next_leg(self, now: float) -> AgentState:
         status = self.coordinator.status(self.unit_id)

@@ -60,7 +60,7 @@ def run_one(args: argparse.Namespace) -> int:
 
     try:
         metrics = execute(args.scenario, args.policy, args.seed, args.server, args.out,
-                          progress=_progress_bar(args.scenario.stem))  # fmt: skip
+                          progress=_progress_bar(args.scenario.stem), announce=_say)  # fmt: skip
     except (ScenarioError, ValueError, OSError) as exc:
         print(f"\nfleetmap run: error: {exc}", file=sys.stderr)
         return 2
@@ -91,6 +91,10 @@ def run_compare(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rows))
     return 0
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
 
 
 def format_table(rows: list[dict]) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from scenarios.atomic import atomic_output
@@ -30,6 +31,7 @@ def execute(
     out_dir: Path,
     progress: Progress | None = None,
     options: RunOptions | None = None,
+    announce: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
     """Run the scenario at ``scenario_path`` (with ``policy`` and ``seed`` overrides) and
     write its outputs to ``out_dir``; returns the metrics."""
@@ -39,7 +41,7 @@ def execute(
     if seed is not None:
         scenario = scenario.with_seed(seed)
     token = os.environ.get(TOKEN_ENV) if server_url else None
-    record = run(scenario, server_url, options, progress, token=token)
+    record = run(scenario, server_url, options, progress, token=token, announce=announce)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_output(out / METRICS_FILENAME) as f:

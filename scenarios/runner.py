@@ -32,7 +32,7 @@ from fleet.ground_truth import GroundTruth
 from fleet.poster import ScanPoster
 from fleet.sim import FleetSim
 from fleet.world import World
-from mapserver.client import Grid, MapClient
+from mapserver.client import Grid, MapClient, UnitState
 from mapserver.geometry import GridGeometry
 from planner.coordinator import LaneCoordinator
 from planner.freeze import Freeze, FreezeDetector, UnitObservation, classify, stale_free_cells
@@ -77,6 +77,7 @@ def run(
     options: RunOptions | None = None,
     progress: Progress | None = None,
     token: str | None = None,
+    announce: Callable[[str], None] | None = None,
 ) -> RunRecord:
     """Run scenario ``setup`` against ``server_url`` (None: an embedded server of its own;
     ``token``: the bearer token for a server that needs one)."""
@@ -86,6 +87,8 @@ def run(
         if server_url is None:
             server = EmbeddedServer(Path(tmp) / "data", setup.server_overrides())
             server_url = server.url
+            if announce is not None:
+                announce(f"map server for this run: {server_url}/ (the live viewer)")
         try:
             with httpx.Client(base_url=server_url, timeout=60) as http:
                 client = MapClient(http, token=token, timeout=60)
@@ -149,6 +152,9 @@ class _Run:
             }
             for agent in agents.values():
                 agent.navigator.reroute = _rerouter(coordinator, graph)
+            for i, spec in enumerate(units):  # every unit holds its start node from t = 0
+                node = _start_node(coordinator, graph, spec.unit_id, (spec.start.x, spec.start.y))
+                coordinator.request(spec.unit_id, node, node, float(-i), 0.0)
             truth = GroundTruth(world, self.geometry, setup.inflation())
             clearing = ClearingTracker(self.geometry)
             events = self._schedule_events(sim, clearing)
@@ -219,6 +225,7 @@ class _Run:
                         self._note_blocking(uid, now, state.blocking)
                 if now >= next_units - 1e-9:
                     self._record_units(sim, agents, frozen_now, now)
+                    self._publish_units(sim, agents, frozen_now, now)
                     next_units = now + opts.record_units_s
                 if now >= next_grid - 1e-9:
                     self.record.grids.append(
@@ -277,6 +284,15 @@ class _Run:
             self.record.units.append(
                 UnitSample(now, uid, pose.x, pose.y, pose.yaw, moving, uid in frozen, task)
             )
+
+    def _publish_units(self, sim: FleetSim, agents, frozen: set[str], now: float) -> None:
+        """Show the units, their plans and freezes in the server's live viewer."""
+        states = []
+        for uid, unit in sim.units.items():
+            plan = agents[uid].navigator.last_plan
+            path = tuple(plan.path) if plan is not None and plan.found else ()
+            states.append(UnitState(uid, now, unit.drive.pose, path, uid in frozen))
+        self.client.publish_units(states)
 
     def _metrics(self, sim, coordinator, agents, collisions, scans_fused, tasks_done, clearing,
                  wall_seconds, events) -> dict[str, object]:  # fmt: skip
@@ -363,8 +379,8 @@ class _Dispatcher:
 
 
 def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:
-    """Where a new trip starts: the node the unit stands at or drives to (None: stranded on
-    a lane); a unit the coordinator does not know yet starts at its nearest node."""
+    """Where a unit's trip starts: the node it stands at or drives to (None: stranded on a
+    lane); a unit the coordinator does not know yet is at the nearest node nobody holds."""
     if uid not in coordinator.unit_ids:  # the nearest node nobody holds
         free = [n for n in graph.nodes if coordinator.holder(n) is None]
         return min(free, key=lambda n: (math.dist(graph.position(n), position), n), default=None)
