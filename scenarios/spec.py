@@ -5,12 +5,11 @@ events, validated and frozen.
 ``ScenarioError`` naming the file, the line and the field (``moved_pod.yaml:23:
 events[1].at: must be a number of seconds >= 0, got 'soon'``). The rules live with the
 classes that own them, never restated here: the layout is built by
-``fleet.layout.Layout.from_dict``; the unit sections by ``DriveLimits``, ``LidarConfig``
-and ``PoseNoise``; the map server section by ``mapserver.settings.load_settings``; lanes,
-stops and one-way lanes by ``planner.lane_graph.LaneGraph.from_warehouse``; recovery by
-``RecoveryConfig``. This module adds only what joins them: the units' starts, storage
-locations, stop clearances, the trips (``scenarios.tasks``) and the events
-(``scenarios.spec_events``).
+``Layout.from_dict`` (``scenarios.spec_layout``), the map server section by the server's
+``load_settings`` (``scenarios.spec_server``), the unit sections by ``DriveLimits``,
+``LidarConfig`` and ``PoseNoise``, recovery by ``RecoveryConfig``; trips are
+``scenarios.tasks``, events ``scenarios.spec_events``. This module joins them and
+places the units.
 
 Placement. Without ``units.starts``, unit ``u<k>`` (k from 1) starts at a free lane
 junction, facing +x: the junctions ``(lane_x[i], lane_y[j])`` in row-major order
@@ -22,17 +21,11 @@ Stop clearance: a unit must be able to stand at every start, station and storage
 location, so each must be farther than ``max(units.drive.radius,
 map_server.inflation.inscribed_radius) + map_server.resolution`` [m] from every obstacle
 of the layout (the planner's inscribed radius plus a cell of rasterisation).
-
-Storage locations: the ``layout.storage`` points, else one per pod (an obstacle of kind
-``pod``), id the pod's id, at the pod's *lane point*: the nearest point to the pod's
-centre on the lane grid (the lane centre lines between the outermost junctions). Storage
-locations and stations are the lane graph's stops (``Scenario.stops``).
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -40,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from fleet.boxworld import BoxWorld, Warehouse
-from fleet.layout import Kind, Layout, LayoutError
+from fleet.boxworld import Warehouse
+from fleet.layout import Layout
 from fleet.lidar import LidarConfig
 from fleet.localization import PoseNoise
 from fleet.sim import UnitSpec
@@ -50,15 +43,7 @@ from mapserver.geometry import GridGeometry
 from mapserver.inflation import InflationParams
 from mapserver.scan import Pose2D
 from mapserver.sensor_model import Policy
-from mapserver.settings import (
-    DecaySettings,
-    GridSettings,
-    InflationSettings,
-    SensorModelSettings,
-    Settings,
-    SettingsError,
-    load_settings,
-)
+from mapserver.settings import Settings
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
 from scenarios.spec_events import (
@@ -71,14 +56,18 @@ from scenarios.spec_events import (
     ScheduledChange,
     parse_events,
 )
-from scenarios.spec_yaml import (
-    Document,
-    FieldPath,
-    Fields,
-    ScenarioError,
-    build_dataclass,
-    parse_yaml,
+from scenarios.spec_layout import (
+    LAYOUT_KEYS,
+    StoragePoint,
+    check_clear,
+    check_stops,
+    layout_warehouse,
+    parse_layout,
+    parse_one_way,
+    parse_storage,
 )
+from scenarios.spec_server import MAP_SERVER_KEYS, MapServerSpec, parse_map_server
+from scenarios.spec_yaml import Document, Fields, ScenarioError, build_dataclass, parse_yaml
 from scenarios.tasks import Task, TaskSpec, parse_tasks, task_stream
 
 __all__ = [
@@ -105,13 +94,9 @@ __all__ = [
 Point = tuple[float, float]
 
 DEFAULT_DT_S = 0.1
-DEFAULT_RESOLUTION_M = 0.1
 MAX_DURATION_S = 86_400.0
 MIN_DT_S = 0.001
-MAX_FLOOR_M = 500.0
 MAX_UNITS = 500
-MAX_GRID_CELLS = 25_000_000
-"""Largest map grid a scenario may ask for (the server keeps ~20 bytes per cell)."""
 
 TOP_KEYS = (
     "name",
@@ -126,47 +111,11 @@ TOP_KEYS = (
     "events",
     "recovery",
 )
-LAYOUT_KEYS = ("warehouse", "floor", "lanes", "obstacles", "stations", "storage", "one_way")
 UNIT_KEYS = ("count", "starts", "drive", "lidar", "pose_noise")
 TASK_KEYS = ("count", "rate_per_unit", "dwell")
-MAP_SERVER_KEYS = (
-    "policy",
-    "resolution",
-    "sensor_model",
-    "decay",
-    "inflation",
-    "max_clearing_range",
-)
-MAP_SERVER_SECTIONS = {
-    "sensor_model": SensorModelSettings,
-    "decay": DecaySettings,
-    "inflation": InflationSettings,
-}
-WAREHOUSE_FIELDS: Mapping[str, tuple[str, dict[str, Any]]] = {
-    # scenario key: (warehouse_layout argument, its bounds here)
-    "width": ("width_m", {"unit": "metres", "low": 0, "low_open": True, "high": MAX_FLOOR_M}),
-    "height": ("height_m", {"unit": "metres", "low": 0, "low_open": True, "high": MAX_FLOOR_M}),
-    "seed": ("seed", {"integer": True, "low": 0}),
-    "aisle": ("aisle_m", {"unit": "metres", "low": 1.0, "high": 50.0}),
-    "rack_depth": ("rack_depth_m", {"unit": "metres", "low": 0.2, "high": 50.0}),
-    "cross_aisle_every": ("cross_aisle_every_m", {"unit": "metres", "low": 5.0, "high": 500.0}),
-}
-_LANE_NODE_ID = re.compile(r"[jw]\d+_\d+([hv]\d+)?")
-"""Ids the lane graph gives its junctions and waypoints; stops may not take them."""
 
 
 # ---------------------------------------------------------------------------- model
-@dataclass(frozen=True)
-class StoragePoint:
-    """A storage location: ``id`` and the lane point (x, y) [m] where a unit stops to
-    pick; ``pod``: the pod it serves (None for a ``layout.storage`` point)."""
-
-    id: str
-    x: float
-    y: float
-    pod: str | None = None
-
-
 @dataclass(frozen=True)
 class UnitsSpec:
     """The fleet: one start pose per unit (unit ``u<k>`` starts at ``starts[k - 1]``),
@@ -195,41 +144,6 @@ class UnitsSpec:
             UnitSpec(uid, start, self.drive, self.lidar, self.pose_noise)
             for uid, start in zip(self.ids, self.starts, strict=True)
         )
-
-
-@dataclass(frozen=True)
-class MapServerSpec:
-    """The map server a run uses: every value the scenario pins (defaults filled in).
-
-    grid: the whole floor at the scenario's resolution, origin (0, 0).
-    """
-
-    policy: Policy
-    grid: GridSettings
-    sensor_model: SensorModelSettings
-    decay: DecaySettings
-    inflation: InflationSettings
-    max_clearing_range: float | None = None
-
-    def overrides(self) -> dict[str, Any]:
-        """Settings overrides for ``load_settings`` (nested mappings): the policy, grid,
-        sensor model, decay, inflation and clearing range, complete, so neither the
-        environment nor a config file can change a run."""
-        out: dict[str, Any] = {
-            "policy": self.policy.value,
-            "grid": self.grid.model_dump(),
-            "sensor_model": self.sensor_model.model_dump(),
-            "decay": self.decay.model_dump(),
-            "inflation": self.inflation.model_dump(),
-        }
-        if self.max_clearing_range is not None:
-            out["max_clearing_range"] = self.max_clearing_range
-        return out
-
-    def settings(self, extra: Mapping[str, Any] | None = None) -> Settings:
-        """Server ``Settings`` with these values, plus ``extra`` overrides (``data_dir``,
-        ``port``, ... as ``load_settings`` takes them)."""
-        return load_settings(None, {**self.overrides(), **(extra or {})})
 
 
 @dataclass(frozen=True)
@@ -329,19 +243,6 @@ class Scenario:
         return replace(self, seed=seed)
 
 
-def layout_warehouse(layout: Layout) -> Warehouse:
-    """``layout`` as a ``Warehouse``: every obstacle's bounding box, kinds, and lanes."""
-    boxes = np.array([o.shape.bounds() for o in layout.obstacles], dtype=np.float64)
-    return Warehouse(
-        world=BoxWorld(boxes.reshape(-1, 4)),
-        width=layout.width,
-        height=layout.height,
-        lane_x=layout.lane_x,
-        lane_y=layout.lane_y,
-        kinds=tuple(o.kind.value for o in layout.obstacles),
-    )
-
-
 # ---------------------------------------------------------------------------- loading
 def load_scenario(path: str | Path, overrides: Mapping[str, Any] | None = None) -> Scenario:
     """The scenario in the YAML file ``path``; ``overrides`` set dotted keys first
@@ -395,24 +296,14 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
         )
 
     lf = top.fields("layout", LAYOUT_KEYS)
-    layout = _layout(doc, lf)
-    map_server = _map_server(doc, top.fields("map_server", MAP_SERVER_KEYS), layout, drive)
+    layout = parse_layout(doc, lf)
+    map_server = parse_map_server(doc, top.fields("map_server", MAP_SERVER_KEYS), layout, drive)
     clearance = (
         max(drive.radius, map_server.inflation.inscribed_radius) + map_server.grid.resolution
     )
-    storage, storage_paths = _storage(doc, lf, layout)
-    stop_paths = {s.id: lf.at("stations") + (i,) for i, s in enumerate(layout.stations)}
-    for point, where in zip(storage, storage_paths, strict=True):
-        if point.id in stop_paths:
-            raise doc.error(where, "has the id of a station", point.id)
-        stop_paths[point.id] = where
-    stops = {s.id: (s.x, s.y) for s in (*layout.stations, *storage)}
-    for sid, where in stop_paths.items():
-        if _LANE_NODE_ID.fullmatch(sid):
-            raise doc.error(where, "is a lane graph node id (j<i>_<j>, w...); pick another", sid)
-        _check_clear(doc, where, layout, [stops[sid]], clearance)
-    one_way = _one_way(doc, lf)
-    _check_lanes(doc, lf, layout, stops, stop_paths, one_way)
+    storage, storage_paths = parse_storage(doc, lf, layout)
+    one_way = parse_one_way(doc, lf)
+    check_stops(doc, lf, layout, storage, storage_paths, one_way, clearance)
 
     units = _units(doc, uf, layout, drive, lidar, noise, clearance)
     tasks = parse_tasks(top.fields("tasks", TASK_KEYS), units.count, duration)
@@ -449,135 +340,6 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
     )
 
 
-# ---------------------------------------------------------------------------- layout
-def _layout(doc: Document, lf: Fields) -> Layout:
-    """``Layout.from_dict`` of the layout section (warehouse keys renamed, bounded)."""
-    data = {k: v for k, v in lf.data.items() if k not in ("storage", "one_way")}
-    if "warehouse" in lf:
-        wf = lf.fields("warehouse", WAREHOUSE_FIELDS)
-        data["warehouse"] = {
-            name: wf.number(key, **bounds)
-            for key, (name, bounds) in WAREHOUSE_FIELDS.items()
-            if key in wf
-        }
-    try:
-        layout = Layout.from_dict(data)
-    except LayoutError as exc:
-        path = ("layout", *_field_path(exc.field))
-        raise doc.error(path, str(exc)[len(exc.field) + 2 :]) from None
-    for name, size in (("width", layout.width), ("height", layout.height)):
-        if size > MAX_FLOOR_M:
-            raise doc.error(lf.at("floor") + (name,), f"must be at most {MAX_FLOOR_M:g} m", size)
-    for axis, lanes in (("x", layout.lane_x), ("y", layout.lane_y)):
-        if any(b <= a for a, b in zip(lanes, lanes[1:], strict=False)):
-            raise doc.error(lf.at("lanes") + (axis,), "must be strictly increasing", list(lanes))
-    return layout
-
-
-def _field_path(name: str) -> FieldPath:
-    """``obstacles[2].box.x`` -> ``("obstacles", 2, "box", "x")``."""
-    return tuple(
-        int(index) if index else key for key, index in re.findall(r"([^.\[\]]+)|\[(\d+)\]", name)
-    )
-
-
-def _storage(
-    doc: Document, lf: Fields, layout: Layout
-) -> tuple[tuple[StoragePoint, ...], list[FieldPath]]:
-    """The storage locations and the field path of each (module docstring)."""
-    if "storage" in lf:
-        points, paths = [], []
-        for where, item in lf.items("storage"):
-            sf = Fields(doc, where, item, ("id", "x", "y"), ("id", "x", "y"))
-            x, y = sf.number("x", unit="metres"), sf.number("y", unit="metres")
-            points.append(StoragePoint(sf.text("id", what="a storage id"), x, y))
-            paths.append(where)
-        ids = [p.id for p in points]
-        for i, pid in enumerate(ids):
-            if pid in ids[:i]:
-                raise doc.error((*paths[i], "id"), "duplicates an earlier storage id", pid)
-        return tuple(points), paths
-    raw = lf.get("obstacles") or []
-    points, paths = [], []
-    for obstacle in layout.obstacles:
-        if obstacle.kind is not Kind.POD:
-            continue
-        index = next(i for i, item in enumerate(raw) if item.get("id") == obstacle.id)
-        where = lf.at("obstacles") + (index,)
-        point = _lane_point(layout, obstacle.shape.x, obstacle.shape.y)
-        if point is None:
-            raise doc.error(where, "is a pod (a storage location) but the layout has no lanes")
-        points.append(StoragePoint(obstacle.id, point[0], point[1], pod=obstacle.id))
-        paths.append(where)
-    return tuple(points), paths
-
-
-def _lane_point(layout: Layout, x: float, y: float) -> Point | None:
-    """The nearest point to (x, y) [m] on the lane grid (None without lanes both ways)."""
-    xs, ys = layout.lane_x, layout.lane_y
-    if not (xs and ys):
-        return None
-    candidates = [(lx, min(max(y, ys[0]), ys[-1])) for lx in xs]
-    candidates += [(min(max(x, xs[0]), xs[-1]), ly) for ly in ys]
-    return min(candidates, key=lambda p: math.hypot(p[0] - x, p[1] - y))
-
-
-def _check_clear(
-    doc: Document, where: FieldPath, layout: Layout, points: list[Point], clearance: float
-) -> None:
-    """Every point lies on the floor, farther than ``clearance`` [m] from every obstacle."""
-    xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    for x, y in xy:
-        if not (0 <= x <= layout.width and 0 <= y <= layout.height):
-            raise doc.error(where, "must lie on the floor", (float(x), float(y)))
-    for obstacle in layout.obstacles:
-        gaps = obstacle.shape.distance(xy[:, 0], xy[:, 1])
-        k = int(np.argmin(gaps))
-        if gaps[k] <= clearance:
-            x, y = xy[k]
-            raise doc.error(
-                where,
-                f"({x:.2f}, {y:.2f}) is {gaps[k]:.2f} m from {obstacle.kind.value} "
-                f"{obstacle.id!r}; a unit standing there needs more than {clearance:g} m "
-                "(the larger of the unit's radius and the inscribed radius, plus one cell)",
-            )
-
-
-def _one_way(doc: Document, lf: Fields) -> tuple[tuple[str, str], ...]:
-    pairs = []
-    for where, item in lf.items("one_way"):
-        if not (
-            isinstance(item, list) and len(item) == 2 and all(isinstance(v, str) for v in item)
-        ):
-            raise doc.error(where, "must be a pair [junction_a, junction_b] of junction ids", item)
-        pairs.append((item[0], item[1]))
-    return tuple(pairs)
-
-
-def _check_lanes(
-    doc: Document,
-    lf: Fields,
-    layout: Layout,
-    stops: Mapping[str, Point],
-    stop_paths: Mapping[str, FieldPath],
-    one_way: tuple[tuple[str, str], ...],
-) -> None:
-    """The lane graph accepts the stops and one-way lanes; its error goes to the field."""
-    try:
-        LaneGraph.from_warehouse(layout_warehouse(layout), stations=stops, one_way=one_way)
-    except ValueError as exc:
-        message = str(exc)
-        where: FieldPath = lf.path
-        for sid, path in stop_paths.items():
-            if repr(sid) in message:
-                where = path
-        for i, (a, b) in enumerate(one_way):
-            lane = tuple(sorted((a, b)))
-            if f"({a!r}, {b!r})" in message or f"lane {lane!r} both" in message:
-                where = lf.at("one_way") + (i,)
-        raise doc.error(where, message) from None
-
-
 # ---------------------------------------------------------------------------- units
 def _units(
     doc: Document,
@@ -588,6 +350,8 @@ def _units(
     noise: PoseNoise,
     clearance: float,
 ) -> UnitsSpec:
+    """The ``units`` section: given starts (checked clear of obstacles and of each other,
+    ``clearance`` [m]) or placed ones (``_place``)."""
     if "count" not in uf and "starts" not in uf:
         raise doc.error(uf.at("count"), "is required (or give starts)")
     count = uf.integer("count", None, low=1, high=MAX_UNITS)
@@ -598,7 +362,7 @@ def _units(
         sf = Fields(doc, where, item, ("x", "y", "yaw"), ("x", "y"))
         x, y = sf.number("x", unit="metres"), sf.number("y", unit="metres")
         starts.append(Pose2D(x, y, sf.number("yaw", 0.0, unit="radians")))
-        _check_clear(doc, where, layout, [(x, y)], clearance)
+        check_clear(doc, where, layout, (x, y), clearance)
         for k, other in enumerate(starts[:-1]):
             if math.hypot(other.x - x, other.y - y) <= 2 * drive.radius:
                 raise doc.error(where, f"overlaps the start of u{k + 1}", (x, y))
@@ -627,45 +391,3 @@ def _place(
         )
     picks = [spots[(k * len(spots)) // count] for k in range(count)]
     return tuple(Pose2D(float(x), float(y), 0.0) for x, y in picks)
-
-
-# ---------------------------------------------------------------------------- map server
-def _map_server(doc: Document, f: Fields, layout: Layout, drive: DriveLimits) -> MapServerSpec:
-    """The map server section, checked by building the server's own Settings."""
-    resolution = f.number("resolution", DEFAULT_RESOLUTION_M, unit="metres", low=0.01, high=1.0)
-    width = math.ceil(layout.width / resolution - 1e-9)
-    height = math.ceil(layout.height / resolution - 1e-9)
-    if width * height > MAX_GRID_CELLS:
-        raise doc.error(
-            f.at("resolution"),
-            f"gives a {width} x {height} grid, more than {MAX_GRID_CELLS} cells",
-            resolution,
-        )
-    overrides: dict[str, Any] = {
-        "policy": f.get("policy", Policy.DECAY.value),
-        "grid": {"width": width, "height": height, "resolution": resolution},
-        "max_clearing_range": f.get("max_clearing_range"),
-    }
-    for name, section in MAP_SERVER_SECTIONS.items():
-        values = section().model_dump()
-        if name == "inflation":  # Nav2 derives it from the footprint: so do we
-            values["inscribed_radius"] = drive.radius
-        values.update(f.fields(name, section.model_fields).data)
-        overrides[name] = values
-    try:
-        settings = load_settings(None, overrides)
-    except SettingsError as exc:
-        name, _, detail = exc.problems[0].partition(": ")
-        path = _field_path(name)
-        if not path or path[0] not in MAP_SERVER_KEYS:
-            where = f.at("resolution") if path[:1] == ("grid",) else f.path
-            raise doc.error(where, exc.problems[0]) from None
-        raise doc.error((*f.path, *path), detail) from None
-    return MapServerSpec(
-        policy=settings.policy,
-        grid=settings.grid,
-        sensor_model=settings.sensor_model,
-        decay=settings.decay,
-        inflation=settings.inflation,
-        max_clearing_range=settings.max_clearing_range,
-    )

@@ -302,6 +302,7 @@ def parse_events(
 
 
 def _parse_one(doc: Document, where: FieldPath, item: Any, duration: float) -> Event:
+    """One event mapping, its kind told by the one kind key it holds."""
     if not isinstance(item, dict):
         raise doc.error(where, "must be a mapping with at and one of " + ", ".join(EVENT_KINDS))
     kinds = [k for k in EVENT_KINDS if k in item]
@@ -341,6 +342,7 @@ def _parse_one(doc: Document, where: FieldPath, item: Any, duration: float) -> E
 
 
 def _size(doc: Document, f: Fields) -> Point:
+    """A drop's ``size`` [m]: a square's side or ``[size_x, size_y]``."""
     value = f.get("size", MISSING)
     if value is MISSING:
         return DEFAULT_TOTE_M

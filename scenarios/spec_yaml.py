@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -54,6 +55,13 @@ def dotted(path: FieldPath) -> str:
         else:
             text += f".{part}" if text else str(part)
     return text or "scenario"
+
+
+def field_path(name: str) -> FieldPath:
+    """``obstacles[2].box.x`` -> ``("obstacles", 2, "box", "x")``."""
+    return tuple(
+        int(index) if index else key for key, index in re.findall(r"([^.\[\]]+)|\[(\d+)\]", name)
+    )
 
 
 def short_repr(value: Any) -> str:
