@@ -1,7 +1,5 @@
 """Grid A* and Dijkstra: optimal costs (checked against networkx), safety, unknown."""
 
-import math
-
 import networkx as nx
 import numpy as np
 import pytest
@@ -10,42 +8,20 @@ from hypothesis import strategies as st
 
 from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.geometry import GridGeometry
-from planner.grid_search import GridPlanner, PlanRequestError, cell_weights
+from planner.grid_reference import networkx_grid
+from planner.grid_search import GridPlanner, PlanRequestError
 
 RES = 0.5
 
 
 def reference_cost(costs: np.ndarray, start, goal, allow_unknown: bool) -> float | None:
     """networkx Dijkstra on the same 8-connected weighted grid (no corner cutting)."""
-    h, w = costs.shape
-    weights = cell_weights(allow_unknown)
-    if weights[costs[start]] == np.inf or weights[costs[goal]] == np.inf:
+    graph = networkx_grid(costs, RES, allow_unknown)
+    if start not in graph or goal not in graph:
         return None
-    if start == goal:
-        return 0.0
-    graph = nx.DiGraph()
-    for r in range(h):
-        for c in range(w):
-            if weights[costs[r, c]] == np.inf:
-                continue
-            for dr in (-1, 0, 1):
-                for dc in (-1, 0, 1):
-                    rr, cc = r + dr, c + dc
-                    if (dr, dc) == (0, 0) or not (0 <= rr < h and 0 <= cc < w):
-                        continue
-                    if weights[costs[rr, cc]] == np.inf:
-                        continue
-                    if (
-                        dr
-                        and dc
-                        and (weights[costs[r, cc]] == np.inf or weights[costs[rr, c]] == np.inf)
-                    ):
-                        continue
-                    step = RES * (math.sqrt(2) if dr and dc else 1.0)
-                    graph.add_edge((r, c), (rr, cc), weight=step * weights[costs[rr, cc]])
     try:
         return nx.dijkstra_path_length(graph, start, goal)
-    except (nx.NetworkXNoPath, nx.NodeNotFound):
+    except nx.NetworkXNoPath:
         return None
 
 

@@ -24,7 +24,8 @@ from inflation import warehouse
 from mapserver.costvalues import LETHAL
 from mapserver.geometry import GridGeometry
 from mapserver.inflation import InflationParams, Inflator
-from planner.grid_search import GridPlanner, cell_weights
+from planner.grid_reference import networkx_grid
+from planner.grid_search import GridPlanner
 
 RES = 0.05
 
@@ -34,29 +35,6 @@ def costmap() -> np.ndarray:
     costs = Inflator(InflationParams(), RES).inflate(lethal)
     costs[lethal] = LETHAL
     return costs
-
-
-def grid_graph(costs: np.ndarray) -> nx.DiGraph:
-    """The planner's 8-connected graph (no corner cutting) as networkx edges."""
-    weights = cell_weights(True)
-    h, w = costs.shape
-    graph = nx.DiGraph()
-    for r in range(h):
-        for c in range(w):
-            if weights[costs[r, c]] == np.inf:
-                continue
-            for dr in (-1, 0, 1):
-                for dc in (-1, 0, 1):
-                    rr, cc = r + dr, c + dc
-                    if (dr, dc) == (0, 0) or not (0 <= rr < h and 0 <= cc < w):
-                        continue
-                    if weights[costs[rr, cc]] == np.inf:
-                        continue
-                    if dr and dc and np.inf in (weights[costs[r, cc]], weights[costs[rr, c]]):
-                        continue
-                    step = RES * (math.sqrt(2) if dr and dc else 1.0)
-                    graph.add_edge((r, c), (rr, cc), weight=step * weights[costs[rr, cc]])
-    return graph
 
 
 def octile(a: tuple[int, int], b: tuple[int, int]) -> float:
@@ -104,7 +82,7 @@ def main() -> None:
     start = ((s_cell[1] + 0.5) * RES, (s_cell[0] + 0.5) * RES)
     goal = ((g_cell[1] + 0.5) * RES, (g_cell[0] + 0.5) * RES)
     ours_ms, ours = best_of(5, lambda: small.plan(crop, start, goal))
-    graph = grid_graph(crop)
+    graph = networkx_grid(crop, RES)
     nx_ms, nx_path = best_of(1, lambda: nx.astar_path(graph, s_cell, g_cell, octile, "weight"))
     nx_cost = nx.path_weight(graph, nx_path, "weight")
     figures.update(crop_ms=ours_ms, networkx_crop_ms=nx_ms, speed_ratio=nx_ms / ours_ms)
