@@ -1,10 +1,12 @@
 """``fleetmap run`` end to end on the tiny scenario: outputs, contract keys, determinism."""
 
 import json
+from dataclasses import replace
 
 import pytest
 from mcap.reader import make_reader
 
+from scenarios import runner
 from scenarios.cli import main
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.spec import load_scenario
@@ -59,3 +61,37 @@ def test_a_bad_scenario_is_a_clear_error(tmp_path, capsys):
     bad.write_text("name: bad\nduration: -5\n")
     assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "bad.yaml" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "name", ["static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift"]
+)
+def test_every_shipped_scenario_runs_to_completion(tmp_path, name):
+    """Cut to the first 10 simulated seconds (later events never fire); the full runs take
+    minutes (busy_shift ~4)."""
+    scenario = replace(load_scenario(f"scenarios/{name}.yaml"), duration=10.0)
+    record = runner.run(scenario)
+    assert CONTRACT_KEYS <= set(record.metrics)
+    assert record.metrics["sim_seconds"] == pytest.approx(10.0)
+    assert record.metrics["scans_fused"] > 0
+
+
+def test_a_pod_moved_out_of_a_dead_end_makes_a_phantom_freeze_under_sticky(tmp_path):
+    scenario_out = tmp_path / "moved"
+    assert main(["run", "scenarios/moved_pod.yaml", "--policy", "sticky", "--out",
+                 str(scenario_out), "--json"]) == 0  # fmt: skip
+    metrics = json.loads((scenario_out / "metrics.json").read_text())
+    freezes = json.loads((scenario_out / "freezes.json").read_text())
+    assert metrics["phantom_freezes"] >= 1 and metrics["phantom_freeze_seconds"] > 0
+    assert metrics["time_to_clear_s"] == [None]  # sticky never forgets the pod
+    phantom = [f for f in freezes if f["phantom"]]
+    assert phantom and all(not f["true_block"] for f in phantom)
+    assert all(not cell["truly_occupied"] for f in phantom for cell in f["blocking_cells"])
+
+
+def test_a_dropped_tote_never_removed_is_a_true_block_never_a_phantom(tmp_path):
+    out = tmp_path / "tote"
+    assert main(["run", "scenarios/dropped_tote.yaml", "--out", str(out), "--json"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["true_block_freezes"] >= 1
+    assert metrics["phantom_freezes"] == 0
