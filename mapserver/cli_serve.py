@@ -32,7 +32,9 @@ def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
         description="Replay a server's journal (its data dir or journal file) and write "
         "map.yaml, map.pgm and logodds.npy as `map build` does.",
     )
-    replay.add_argument("source", type=Path, help="server data dir or journal.sqlite3")
+    replay.add_argument(
+        "source", type=Path, help="server data dir, journal.sqlite3, or a run's folder/replay.mcap"
+    )
     replay.add_argument("--until", type=float, help="[s] replay scans with stamp <= this")
     replay.add_argument("--out", type=Path, default=Path("."), help="output folder (default .)")
     replay.add_argument("--json", action="store_true", help="print the figures as JSON last")

@@ -9,6 +9,8 @@ from mapserver.cli_map import add_map_parser
 from mapserver.cli_serve import add_serve_parsers
 from planner.cli_plan import add_plan_parser
 from scenarios.cli_run import add_run_parsers
+from scenarios.cli_sweep import add_sweep_parser
+from scenarios.replay_run import run_replay
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,6 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_serve_parsers(sub)
     add_plan_parser(sub)
     add_run_parsers(sub)
+    sub.choices["replay"].set_defaults(handler=run_replay)  # journals and run replays
+    add_sweep_parser(sub)
     return parser
 
 

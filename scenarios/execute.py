@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from scenarios.atomic import atomic_output
 from scenarios.freezes_json import write_freezes
@@ -32,10 +33,13 @@ def execute(
     progress: Progress | None = None,
     options: RunOptions | None = None,
     announce: Callable[[str], None] | None = None,
+    overrides: Mapping[str, Any] | None = None,
 ) -> dict[str, object]:
     """Run the scenario at ``scenario_path`` (with ``policy`` and ``seed`` overrides) and
-    write its outputs to ``out_dir``; returns the metrics."""
-    scenario = load_scenario(scenario_path)
+    write its outputs to ``out_dir``; returns the metrics. ``overrides``: dotted scenario
+    keys set before validation (``{"map_server.decay.half_life_occupied": 10}``, a
+    sweep's parameters; ``load_scenario``)."""
+    scenario = load_scenario(scenario_path, overrides)
     if policy is not None:
         scenario = scenario.with_policy(policy)
     if seed is not None:

@@ -95,3 +95,11 @@ def test_a_dropped_tote_never_removed_is_a_true_block_never_a_phantom(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["true_block_freezes"] >= 1
     assert metrics["phantom_freezes"] == 0
+
+
+def test_replay_rebuilds_a_map_from_a_runs_replay(first_run, tmp_path, capsys):
+    out, metrics = first_run
+    assert main(["replay", str(out), "--out", str(tmp_path / "map"), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert 0 < figures["scans"] < metrics["scans_fused"]  # the replay keeps a sample
+    assert (tmp_path / "map" / "map.yaml").is_file()
