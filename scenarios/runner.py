@@ -56,6 +56,7 @@ from scenarios.spec import Scenario
 from scenarios.tasks import Task
 
 Progress = Callable[[float, float], None]
+POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim steps on
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,12 @@ class _Run:
                     for uid, u in sim_ref[0].units.items()
                 }
 
-            poster = FleetMemberFilter(ScanPoster(self.client), unit_positions)
+            # Scans go out on a worker thread while the sim casts the next tick's rays;
+            # every map read waits for them first (``_synced``), so runs stay deterministic.
+            poster = FleetMemberFilter(
+                ScanPoster(self.client, in_flight=POSTS_IN_FLIGHT), unit_positions
+            )
+            self._poster = poster
             sim = FleetSim(world, units, seed=setup.seed, poster=poster)
             sim_ref.append(sim)
             graph = setup.build_lane_graph()
@@ -164,12 +170,11 @@ class _Run:
             costs: Grid | None = None
             next_read = next_refresh = next_units = next_grid = 0.0
             next_scan: dict[str, float] = {}
-            collisions = scans_fused = tasks_done = 0
+            collisions = tasks_done = 0
             while sim.time < setup.duration - 1e-9:
                 step = sim.step(setup.dt)
                 now = step.time
                 collisions += len(step.collisions)
-                scans_fused += len(step.acks)
                 for scan in step.scans:
                     self._scan_index.setdefault(scan.stamp, []).append(
                         (scan.unit_id, scan.pose.x, scan.pose.y, scan.range_max)
@@ -178,10 +183,11 @@ class _Run:
                         self.record.scans.append(_scan_sample(scan))
                         next_scan[scan.unit_id] = now + opts.record_scans_s
                 if costs is None or now >= next_read - 1e-9:
-                    costs = self.client.costmap()
+                    costs = self._synced().costmap()
                     clearing.observe(costs.data, now)
                     next_read = now + opts.map_read_s
                 if now >= next_refresh - 1e-9:
+                    self._synced()
                     coordinator.refresh(now)
                     next_refresh = now + opts.lane_refresh_s
                 positions = {uid: (u.drive.pose.x, u.drive.pose.y) for uid, u in sim.units.items()}
@@ -233,13 +239,13 @@ class _Run:
                             now,
                             costs.version,
                             costs.data.copy(),
-                            self.client.occupancy().data.copy(),
+                            self._synced().occupancy().data.copy(),
                         )
                     )
                     next_grid = now + opts.record_grids_s
                 if self.progress is not None:
                     self.progress(now, setup.duration)
-            poster.flush()
+            self._synced()
             freezes = detector.finish(sim.time)
             self._classify(freezes, truth)
             self.record.freezes = freeze_records(
@@ -248,6 +254,7 @@ class _Run:
             self.record.time_to_clear = {
                 w.object_id: t for w, t in zip(clearing.watches, clearing.times(), strict=True)
             }
+            scans_fused = self._poster.poster.posted
             self.record.metrics = self._metrics(
                 sim, coordinator, agents, collisions, scans_fused, tasks_done, clearing,
                 time.perf_counter() - wall0, events,
@@ -259,11 +266,16 @@ class _Run:
         stale = stale_free_cells(path, truth.costmap(now), self.geometry)
         self.record.plans.append(PlanSample(now, uid, tuple(path), tuple(stale)))
 
+    def _synced(self) -> MapClient:
+        """The map client, once every scan posted so far is acknowledged."""
+        self._poster.flush()
+        return self.client
+
     def _note_blocking(self, uid: str, now: float, points) -> None:
         """Read each new blocking cell's evidence from the map when it is first seen."""
         new = [p for p in points if (uid, p) not in self._evidence]
         if new:
-            for point, info in zip(new, self.client.query_cells(new), strict=True):
+            for point, info in zip(new, self._synced().query_cells(new), strict=True):
                 self._evidence[(uid, point)] = (now, info)
 
     def _classify(self, freezes: list[Freeze], truth: GroundTruth) -> None:
