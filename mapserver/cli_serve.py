@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+from mapserver.belief import BeliefGrid
+from mapserver.scan import Scan
 from mapserver.settings import SettingsError, load_settings
 
 
@@ -73,7 +75,6 @@ def run_serve(args: argparse.Namespace) -> int:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    from mapserver.offline import fuse_all, write_map_outputs
     from mapserver.replay import ReplayError, replay_journal
 
     try:
@@ -81,10 +82,18 @@ def run_replay(args: argparse.Namespace) -> int:
     except ReplayError as exc:
         print(f"fleetmap replay: error: {exc}", file=sys.stderr)
         return 2
+    return write_replayed(belief, scans, args)
+
+
+def write_replayed(belief: BeliefGrid, scans: list[Scan], args: argparse.Namespace) -> int:
+    """Fuse replayed ``scans`` into ``belief``, write the map files to ``args.out`` and
+    report (``args.json``: the figures as JSON); the tail of every ``fleetmap replay``."""
+    from mapserver.offline import fuse_all, write_map_outputs
+
     stats = fuse_all(belief, scans)
     yaml_path = write_map_outputs(belief, args.out)
     if args.json:
         print(json.dumps(stats.as_dict()))
     else:
-        print(f"replayed {stats.scans} scans; wrote {yaml_path}")
+        print(f"replayed {stats.scans} scans of {args.source}; wrote {yaml_path}")
     return 0

@@ -37,10 +37,8 @@ YAML file's folder. Stricter than Nav2, which checks neither: the origin's yaw m
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -49,6 +47,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
+from mapserver.atomic import atomic_output
 from mapserver.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
 from mapserver.geometry import GridGeometry
 
@@ -142,8 +141,10 @@ def write_ros_map(
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
     yaml_path = folder / (Path(image_name).stem + ".yaml")
-    _atomic_write(folder / image_name, header + pixels.tobytes())
-    _atomic_write(yaml_path, text.encode("utf-8"))
+    with atomic_output(folder / image_name) as f:
+        f.write(header + pixels.tobytes())
+    with atomic_output(yaml_path) as f:
+        f.write(text.encode("utf-8"))
     return yaml_path
 
 
@@ -171,22 +172,6 @@ def _trinary_pixels(
     pixels[known & (occ <= free_max)] = PIXEL_FREE
     pixels[known & (occ >= occupied_min)] = PIXEL_OCCUPIED
     return np.ascontiguousarray(pixels[::-1])
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 # ---------------------------------------------------------------------------- reading

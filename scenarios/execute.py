@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from scenarios.atomic import atomic_output
+from mapserver.atomic import atomic_output
 from scenarios.freezes_json import write_freezes
 from scenarios.replay_mcap import REPLAY_FILENAME, write_replay
 from scenarios.report import write_report

@@ -25,7 +25,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from scenarios.atomic import atomic_output
+from mapserver.atomic import atomic_output
 from scenarios.record import BlockingCell, FreezeRecord, RecoveryStep, RunRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms

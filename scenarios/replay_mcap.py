@@ -48,9 +48,9 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
 from fleet.unit import DriveLimits
+from mapserver.atomic import atomic_output
 from mapserver.geometry import GridGeometry
 from mapserver.scan import Scan
-from scenarios.atomic import atomic_output
 from scenarios.foxglove_messages import (
     Message,
     decode_ranges,

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from mapserver.belief import BeliefGrid
 from mapserver.cli_serve import run_replay as run_journal_replay
-from mapserver.offline import fuse_all, write_map_outputs
+from mapserver.cli_serve import write_replayed
 from mapserver.sensor_model import Policy
 from scenarios.replay_mcap import REPLAY_FILENAME, ReplayFileError, read_geometry, read_scans
 
@@ -44,11 +44,4 @@ def run_replay(args: argparse.Namespace) -> int:
     except (ReplayFileError, ValueError, KeyError, OSError) as exc:
         print(f"fleetmap replay: error: {exc}", file=sys.stderr)
         return 2
-    belief = BeliefGrid(geometry, policy=Policy.parse(policy))
-    stats = fuse_all(belief, scans)
-    yaml_path = write_map_outputs(belief, args.out)
-    if args.json:
-        print(json.dumps(stats.as_dict()))
-    else:
-        print(f"replayed {stats.scans} scans of {replay}; wrote {yaml_path}")
-    return 0
+    return write_replayed(BeliefGrid(geometry, policy=Policy.parse(policy)), scans, args)

@@ -30,8 +30,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from mapserver.atomic import atomic_output
 from mapserver.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
-from scenarios.atomic import atomic_output
 from scenarios.record import EventRecord, FreezeRecord, RunRecord
 
 FIGURE_INCHES = (16.0, 9.0)

@@ -33,6 +33,7 @@ import httpx
 import numpy as np
 
 from fleet.boxworld import sample_scans, warehouse_layout
+from scenarios.embedded_server import free_port
 
 CEILING_APP = textwrap.dedent(
     """
@@ -55,12 +56,6 @@ CEILING_APP = textwrap.dedent(
     uvicorn.run(app, host="127.0.0.1", port=int(sys.argv[1]), log_level="warning")
     """
 )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start(cmd: list[str], port: int, env: dict[str, str] | None = None) -> subprocess.Popen:
