@@ -7,15 +7,29 @@ its heading at speed ``v`` [m/s] and turns at rate ``w`` [rad/s], with
 - ``0 <= v <= max_speed`` (no reversing) and ``|v' - v| <= max_accel * dt`` per step;
 - ``|w| <= max_turn_rate``.
 
-Controller: turn, then drive (as grid-aisle robots do). Each step it turns toward the
-current waypoint as far as the turn rate allows; it drives only while its heading is
-within ``align_tolerance`` of the waypoint's bearing. A waypoint where the path turns by
-more than ``align_tolerance`` (and the last one) is a stop: the speed follows the
-discrete braking profile that lands exactly there (``stopping_speed``: from ``k a dt``
-the speed drops by ``a dt`` per step and the last step covers the remainder); the unit
-stops on it and turns in place toward the next one. A waypoint on a
-straight run is passed without slowing. Motion per step: turn by ``w dt``, then move
-``v dt`` along the mean heading of the step.
+Controller: a regulated pure pursuit, after Macenski, Singh, Martin and Gines,
+*Regulated Pure Pursuit for Robot Path Tracking* (Autonomous Robots 47, 2023; Nav2's
+``RegulatedPurePursuitController``), with stops where a path demands them:
+
+- *Tracking.* The carrot is the point ``lookahead`` [m] along the path from the unit,
+  ``lookahead = clamp(v * lookahead_time, min_lookahead, max_lookahead)``, never past
+  the next stop. The unit steers on the arc through it, curvature
+  ``kappa = 2 sin(e) / D`` (``e`` the heading error to the carrot, ``D`` its distance),
+  turning at ``w = v kappa``.
+- *Regulation.* The speed is the least of ``max_speed``, the curvature limit
+  ``max_turn_rate / |kappa|`` (so the arc fits the turn rate) and the braking profile
+  that lands on the next stop.
+- *Rotate to heading.* With ``|e| > rotate_to_heading`` [rad] the unit slows to a stand
+  and turns in place (as RPP's ``use_rotate_to_heading``); a standing unit turns in
+  place until ``|e| <= align_tolerance`` before it drives off.
+- *Stops.* A waypoint where the path turns by more than ``rotate_to_heading``, and the
+  last one, is a stop: within ``lookahead`` of it the unit drives straight at it, turning
+  toward it and driving only while its heading is within ``align_tolerance``, its speed
+  on the discrete braking profile that lands exactly there (``stopping_speed``: from
+  ``k a dt`` the speed drops by ``a dt`` per step and the last step covers the remainder).
+  Waypoints on a straight run or a gentle bend are passed without stopping.
+
+Motion per step: turn by ``w dt``, then move ``v dt`` along the mean heading of the step.
 
 ``halt()`` is a bumper stop: the path is dropped and the unit stands still at once
 (the one deceleration not bounded by ``max_accel``).
@@ -36,11 +50,15 @@ WAYPOINT_TOLERANCE_M = 0.01
 
 @dataclass(frozen=True)
 class DriveLimits:
-    """A drive unit's body and motion limits.
+    """A drive unit's body, motion limits and path-tracking settings.
 
     radius: [m] footprint radius (a cylinder); height: [m] of the body.
     max_speed: [m/s]; max_accel: [m/s^2] for speeding up and slowing down;
-    max_turn_rate: [rad/s]; align_tolerance: [rad] largest heading error it drives with.
+    max_turn_rate: [rad/s]; align_tolerance: [rad] largest heading error it drives with
+    on the final approach to a stop; rotate_to_heading: [rad] heading error to the
+    carrot above which it turns in place, and the sharpest path turn it drives through
+    (Nav2 RPP's ``rotate_to_heading_min_angle``); lookahead_time [s], min_lookahead and
+    max_lookahead [m]: the carrot's distance (module docstring).
     """
 
     radius: float = 0.3
@@ -49,9 +67,16 @@ class DriveLimits:
     max_accel: float = 1.0
     max_turn_rate: float = 1.5
     align_tolerance: float = 0.1
+    rotate_to_heading: float = 1.0  # [rad] = 57 deg: a 90 deg corner cut in two is driven
+    lookahead_time: float = 1.0
+    min_lookahead: float = 0.4
+    max_lookahead: float = 1.2
 
     def __post_init__(self) -> None:
-        for name in ("radius", "height", "max_speed", "max_accel", "max_turn_rate"):
+        for name in (
+            "radius", "height", "max_speed", "max_accel", "max_turn_rate",
+            "lookahead_time", "min_lookahead", "max_lookahead",
+        ):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not (
                 isinstance(value, int | float) and math.isfinite(value) and value > 0
@@ -61,6 +86,20 @@ class DriveLimits:
             raise ValueError(
                 f"align_tolerance must be in (0, pi/2) rad, got {self.align_tolerance!r}"
             )
+        if not self.align_tolerance <= self.rotate_to_heading < math.pi:
+            raise ValueError(
+                f"rotate_to_heading must be in [align_tolerance, pi) rad, "
+                f"got {self.rotate_to_heading!r}"
+            )
+        if self.max_lookahead < self.min_lookahead:
+            raise ValueError(
+                f"max_lookahead must be >= min_lookahead ({self.min_lookahead!r} m), "
+                f"got {self.max_lookahead!r}"
+            )
+
+    def lookahead(self, speed: float) -> float:
+        """[m] the carrot's distance at ``speed`` [m/s]."""
+        return min(self.max_lookahead, max(self.min_lookahead, speed * self.lookahead_time))
 
 
 def stopping_speed(distance: float, accel: float, dt: float) -> float:
@@ -88,6 +127,7 @@ class DriveUnit:
         self.speed = 0.0  # [m/s]
         self.turn_rate = 0.0  # [rad/s]
         self._path: list[tuple[float, float]] = []
+        self._anchor = (pose.x, pose.y)  # where the path's current segment starts [m]
 
     @property
     def path(self) -> tuple[tuple[float, float], ...]:
@@ -111,6 +151,7 @@ class DriveUnit:
                 raise ValueError(f"path[{i}] must be two finite numbers (x, y) [m], got {point!r}")
             points.append((float(values[0]), float(values[1])))
         self._path = points
+        self._anchor = (self.pose.x, self.pose.y)
 
     def halt(self) -> None:
         """Bumper stop: drop the path and stand still now."""
@@ -125,21 +166,43 @@ class DriveUnit:
         lim = self.limits
         x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
         self._drop_reached(x, y)
-        target_speed, turn, stop, aligned = 0.0, 0.0, True, False
-        if self._path:
-            tx, ty = self._path[0]
-            error = wrap_angle(math.atan2(ty - y, tx - x) - yaw)
-            turn = max(-lim.max_turn_rate, min(lim.max_turn_rate, error / dt))
-            stop = self._is_stop(0)
-            aligned = abs(error) <= lim.align_tolerance
-            if aligned:
-                heading = yaw + turn * dt / 2
-                target_speed = min(lim.max_speed, self._stopping_speed(x, y, heading, stop, dt))
         dv = lim.max_accel * dt
+        target_speed, turn, final, aligned = 0.0, 0.0, False, False
+        if self._path:
+            stop_at, to_stop = self._next_stop(x, y)
+            lookahead = lim.lookahead(self.speed)
+            final = stop_at == 0 and to_stop <= lookahead
+            if final:  # straight at the stop
+                tx, ty = self._path[0]
+                error = wrap_angle(math.atan2(ty - y, tx - x) - yaw)
+                turn = _clamp(error / dt, lim.max_turn_rate)
+                aligned = abs(error) <= lim.align_tolerance
+                if aligned:
+                    heading = yaw + turn * dt / 2
+                    braking = stopping_speed(
+                        max(self._ahead(x, y, heading), 0.0), lim.max_accel, dt
+                    )
+                    target_speed = min(lim.max_speed, braking)
+            else:
+                cx, cy = self._carrot(x, y, min(lookahead, to_stop), stop_at)
+                error = wrap_angle(math.atan2(cy - y, cx - x) - yaw)
+                standing = self.speed == 0.0
+                if abs(error) > (lim.align_tolerance if standing else lim.rotate_to_heading):
+                    if self.speed <= dv:  # slow to a stand, then rotate to heading
+                        turn = _clamp(error / dt, lim.max_turn_rate)
+                else:
+                    curvature = 2.0 * math.sin(error) / max(math.hypot(cx - x, cy - y), 1e-9)
+                    target_speed = min(
+                        lim.max_speed,
+                        stopping_speed(to_stop, lim.max_accel, dt),
+                        lim.max_turn_rate / abs(curvature) if curvature else math.inf,
+                    )
+                    speed = max(0.0, min(target_speed, self.speed + dv), self.speed - dv)
+                    turn = _clamp(speed * curvature, lim.max_turn_rate)
         speed = max(0.0, min(target_speed, self.speed + dv), self.speed - dv)
         heading = yaw + turn * dt / 2
         distance = speed * dt
-        if aligned and stop:  # arrive on a stop, not past it (the closest approach)
+        if aligned and final:  # arrive on the stop, not past it (the closest approach)
             ahead = self._ahead(x, y, heading)
             if ahead > 0:
                 distance = min(distance, ahead)
@@ -150,58 +213,76 @@ class DriveUnit:
         )
         self.speed = distance / dt
         self.turn_rate = turn
-        self._drop_passed(x, y, stop)
+        self._drop_passed(x, y)
         return self.pose
 
     # ------------------------------------------------------------------ internals
     def _is_stop(self, i: int) -> bool:
         """True when the unit must stop at waypoint i: the last, or a turn of the path
-        sharper than ``align_tolerance``."""
+        sharper than ``rotate_to_heading``."""
         if i + 1 >= len(self._path):
             return True
         (ax, ay), (bx, by) = self._path[i], self._path[i + 1]
-        px, py = self._path[i - 1] if i > 0 else (self.pose.x, self.pose.y)
+        px, py = self._path[i - 1] if i > 0 else self._anchor
         if (ax, ay) == (px, py) or (ax, ay) == (bx, by):
             return True
         turn = wrap_angle(math.atan2(by - ay, bx - ax) - math.atan2(ay - py, ax - px))
-        return abs(turn) > self.limits.align_tolerance
+        return abs(turn) > self.limits.rotate_to_heading
+
+    def _next_stop(self, x: float, y: float) -> tuple[int, float]:
+        """The index of the first stop waypoint and its distance [m] along the path."""
+        distance, px, py = 0.0, x, y
+        for i, (wx, wy) in enumerate(self._path):
+            distance += math.hypot(wx - px, wy - py)
+            if self._is_stop(i):
+                return i, distance
+            px, py = wx, wy
+        raise AssertionError("the last waypoint is always a stop")
+
+    def _carrot(self, x: float, y: float, reach: float, stop_at: int) -> tuple[float, float]:
+        """The point ``reach`` [m] along the path from (x, y), no farther than waypoint
+        ``stop_at``."""
+        px, py = x, y
+        for wx, wy in self._path[: stop_at + 1]:
+            step = math.hypot(wx - px, wy - py)
+            if step >= reach and step > 0:
+                f = reach / step
+                return px + f * (wx - px), py + f * (wy - py)
+            reach -= step
+            px, py = wx, wy
+        return px, py
 
     def _ahead(self, x: float, y: float, heading: float) -> float:
         """[m] how far along ``heading`` from (x, y) the target waypoint's closest approach is."""
         tx, ty = self._path[0]
         return (tx - x) * math.cos(heading) + (ty - y) * math.sin(heading)
 
-    def _stopping_speed(self, x: float, y: float, heading: float, stop: bool, dt: float) -> float:
-        """[m/s] the speed that still stops at the next stop waypoint: the target itself
-        (``stop``; where driving along ``heading`` stops), else the first stop along the
-        path."""
-        if stop:
-            return stopping_speed(max(self._ahead(x, y, heading), 0.0), self.limits.max_accel, dt)
-        distance, px, py = 0.0, x, y
-        for i, (wx, wy) in enumerate(self._path):
-            distance += math.hypot(wx - px, wy - py)
-            if self._is_stop(i):
-                break
-            px, py = wx, wy
-        return stopping_speed(distance, self.limits.max_accel, dt)
+    def _pop(self) -> None:
+        self._anchor = self._path.pop(0)
 
     def _drop_reached(self, x: float, y: float) -> None:
         """Drop leading waypoints within ``WAYPOINT_TOLERANCE_M`` of (x, y)."""
         while self._path and math.hypot(self._path[0][0] - x, self._path[0][1] - y) <= (
             WAYPOINT_TOLERANCE_M
         ):
-            self._path.pop(0)
+            self._pop()
 
-    def _drop_passed(self, x0: float, y0: float, stop: bool) -> None:
-        """After moving from (x0, y0): drop the target if reached, or if it is not a
-        ``stop`` and was passed."""
+    def _drop_passed(self, x0: float, y0: float) -> None:
+        """After moving from (x0, y0): drop the target if reached, or if it is not a stop
+        and the unit is past it (along its outgoing segment, or behind the travel)."""
         if not self._path:
             return
         tx, ty = self._path[0]
         x, y = self.pose.x, self.pose.y
         if math.hypot(tx - x, ty - y) <= WAYPOINT_TOLERANCE_M:
-            self._path.pop(0)
-        elif not stop:
-            # passed: the target now lies behind the unit's travel direction
-            if (tx - x) * (x - x0) + (ty - y) * (y - y0) < 0:
-                self._path.pop(0)
+            self._pop()
+        elif not self._is_stop(0):
+            nx, ny = self._path[1]
+            beyond = (x - tx) * (nx - tx) + (y - ty) * (ny - ty) >= 0
+            behind = (tx - x) * (x - x0) + (ty - y) * (y - y0) < 0
+            if beyond or behind:
+                self._pop()
+
+
+def _clamp(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))

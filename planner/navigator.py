@@ -3,8 +3,9 @@
 A ``UnitNavigator`` is given a route (lane waypoints [m], from the lane coordinator or a
 task) and, every tick, the unit's position and the fleet's current costmap (read over
 HTTP by the caller). It plans on the costmap from the unit to its next waypoint (so it
-detours around a tote in an aisle) and returns a ``Command``. When no admissible path
-exists it runs a recovery sequence, as an operator would want:
+detours around a tote in an aisle) and returns a ``Command`` whose path is the plan's
+line-of-sight shortcuts (``planner.path_smoothing``): a few straight legs, no
+staircase. When no admissible path exists it runs a recovery sequence, as an operator would want:
 
 1. ``wait`` up to ``wait_s`` [s], replanning every tick (a person walks on);
 2. ``rotate``: turn in place once (``rotate_s`` [s]) so the LiDAR looks again, which lets
@@ -30,6 +31,7 @@ from mapserver.costvalues import FREE, UNKNOWN
 from mapserver.geometry import GridGeometry
 from mapserver.queries import query_segments
 from planner.grid_search import GridPlanner, PlanResult
+from planner.path_smoothing import smooth_path
 
 Point = tuple[float, float]
 
@@ -128,18 +130,19 @@ class UnitNavigator:
             if stamp - self._recovery.since < self.config.rotate_s:
                 return Command("rotate", reason=self._recovery.reason)
             self._record(stamp, "replan", "turned in place to look again")
-        result = self._plan(position, target, costs)
+        result, path = self._plan(position, target, costs)
         if result.found:
             if self._recovery is not None:
                 self._record(stamp, "resume", f"path to {_fmt(target)} found")
                 self._recovery = None
-            return Command("follow", path=tuple(result.path))
+            return Command("follow", path=tuple(path))
         return self._blocked(stamp, position, target, costs)
 
-    def _plan(self, start: Point, goal: Point, costs: np.ndarray) -> PlanResult:
+    def _plan(self, start: Point, goal: Point, costs: np.ndarray) -> tuple[PlanResult, list]:
         """Plan on ``costs`` with the unit's own footprint cleared: other units' scans
         paint its body (and its inflation) into the shared map, and a unit must be able to
-        leave where it stands (as Nav2 clears the robot footprint)."""
+        leave where it stands (as Nav2 clears the robot footprint). Returns the plan and
+        the path to drive: the plan's line-of-sight shortcuts (``smooth_path``)."""
         if not costs.flags.writeable:
             costs = costs.copy()
         window, saved = self._clear_footprint(start, costs)
@@ -147,9 +150,10 @@ class UnitNavigator:
             self.last_plan = self.planner.plan(
                 costs, start, goal, "astar", self.config.allow_unknown
             )
+            path = smooth_path(self.last_plan.path, costs, self.geometry)
         finally:
             costs[window] = saved
-        return self.last_plan
+        return self.last_plan, path
 
     def _clear_footprint(
         self, at: Point, costs: np.ndarray
