@@ -144,7 +144,10 @@ class UnitStatus:
     "stranded" (stopped on a blocked lane, waiting to turn back). node: the node it stands
     at (None on a lane). edge: the edge it holds (tail, head) when on a lane. target: the
     node to drive to now (None: stand still). holds_tail: it still holds the edge's tail.
-    route: the remaining nodes, from its node or from its edge's tail.
+    route: the remaining nodes, from its node or from its edge's tail. behind_nodes,
+    behind_lanes: what it still holds of the edges it was granted past while driving them
+    (reserving ahead), in driving order; passing: the nodes it drives through before
+    ``target``, in order.
     """
 
     unit: str
@@ -157,6 +160,9 @@ class UnitStatus:
     route: tuple[str, ...]
     waiting_for: tuple[str, ...]
     priority: float
+    behind_nodes: tuple[str, ...] = ()
+    behind_lanes: tuple[Lane, ...] = ()
+    passing: tuple[str, ...] = ()
 
 
 @dataclass(slots=True)
@@ -175,6 +181,22 @@ class _Unit:
     wait_since: float = 0.0
     retry_at: float = -math.inf
     plan_version: int = -1
+    behind: list[_Behind] = field(default_factory=list)
+
+    @property
+    def edge_head(self) -> str | None:
+        return None if self.edge is None else self.edge[1]
+
+
+@dataclass(slots=True)
+class _Behind:
+    """An edge a unit was granted past while still driving it (reserving ahead): what
+    of it the unit still holds until its body has left it."""
+
+    tail: str
+    head: str
+    tail_held: bool
+    lane_held: bool = True
 
 
 @dataclass
@@ -191,7 +213,10 @@ class LaneCoordinator:
     for ``expected_end``. clear_m [m]: distance from a node beyond which a leaving unit
     releases it (at least the unit's length). arrive_tol [m]: distance from an edge's head
     at which the unit has arrived. retry_s [s]: how often a unit held up by a standing
-    unit, or an unresolved deadlock, tries again to get out of it.
+    unit, or an unresolved deadlock, tries again to get out of it. reserve_ahead_m [m]:
+    a unit this close to its edge's head is granted its next edge already, if it is free,
+    so it drives on without stopping (0: only once it has arrived; see *Reserving
+    ahead* in the module docstring).
 
     ``table`` is the reservation table; ``log`` every decision; ``deadlocks`` the number
     of wait-for cycles found.
@@ -206,6 +231,7 @@ class LaneCoordinator:
         clear_m: float = 1.0,
         arrive_tol: float = 0.1,
         retry_s: float = 1.0,
+        reserve_ahead_m: float = 0.0,
     ) -> None:
         for name, value in (
             ("speed", speed),
@@ -215,6 +241,11 @@ class LaneCoordinator:
         ):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not (math.isfinite(reserve_ahead_m) and reserve_ahead_m >= 0):
+            raise ValueError(
+                f"reserve_ahead_m must be a finite number >= 0, got {reserve_ahead_m!r}"
+            )
+        self.reserve_ahead_m = float(reserve_ahead_m)
         self.graph = graph
         self.client = client
         self.speed = float(speed)
@@ -264,6 +295,9 @@ class LaneCoordinator:
             route=tuple(u.route),
             waiting_for=u.waiting,
             priority=u.priority,
+            behind_nodes=tuple(b.tail for b in u.behind if b.tail_held),
+            behind_lanes=tuple(lane_key(b.tail, b.head) for b in u.behind if b.lane_held),
+            passing=tuple(b.head for b in u.behind if b.lane_held),
         )
 
     def holder(self, node: str) -> str | None:
@@ -349,6 +383,8 @@ class LaneCoordinator:
                         raise ValueError(f"unit_positions[{uid!r}] must be finite, got {xy!r}")
                     u.pos = (x, y)
         for u in self._sorted:
+            if u.behind and u.pos is not None:
+                self._release_behind(u)
             if u.edge is not None and u.pos is not None:
                 self._progress(tick, u)
         ready = [u for u in self._sorted if (u.edge is None and len(u.route) > 1) or u.turn_back]
@@ -382,14 +418,25 @@ class LaneCoordinator:
         assert u.edge is not None and u.pos is not None
         tail, head = u.edge
         x, y = u.pos
-        if u.tail_held:
-            tx, ty = self._xy[tail]
-            if math.hypot(x - tx, y - ty) > self.clear_m:
+        if u.tail_held and not u.behind:  # a tail ahead of the unit is not left yet
+            (tx, ty), (hx, hy) = self._xy[tail], self._xy[head]
+            beyond = (x - tx) * (hx - tx) + (y - ty) * (hy - ty) > 0
+            if beyond and math.hypot(x - tx, y - ty) > self.clear_m:
                 self.table.release_node(u.uid, tail)
                 u.tail_held = False
         hx, hy = self._xy[head]
-        if u.turn_back or math.hypot(x - hx, y - hy) > self.arrive_tol:
+        to_head = math.hypot(x - hx, y - hy)
+        if u.turn_back:
             return
+        if to_head > self.arrive_tol:
+            if to_head <= self.reserve_ahead_m:
+                self._reserve_ahead(tick, u)
+            return
+        for b in u.behind:  # arrived: every edge before this one is behind the body
+            if b.lane_held:
+                self.table.release_lane(u.uid, b.tail, b.head)
+                b.lane_held = False
+        self._release_behind(u)
         self.table.release_lane(u.uid, tail, head)
         self.table.release_node(u.uid, tail)
         u.edge, u.tail_held, u.prev = None, False, tail
@@ -401,6 +448,57 @@ class LaneCoordinator:
                 self._replan(tick, u, "no_route", f"reached {head} with no route to {u.goal}")
         if head in self._ends or len(u.route) == 1:
             self.table.unclaim(u.uid)  # out of the corridor, or standing in it
+
+    def _reserve_ahead(self, tick: _Tick, u: _Unit) -> None:
+        """Grant a unit near its edge's head the next edges of its route while each is
+        free and its head is within ``reserve_ahead_m`` [m]; it keeps what it drives over
+        until its body has left it (``_release_behind``)."""
+        assert u.pos is not None
+        edges = self.graph.graph.edges
+        while u.edge is not None and len(u.route) > 2:
+            tail, head = u.edge
+            if math.dist(u.pos, self._xy[head]) > self.reserve_ahead_m:
+                return
+            rest = u.route[1:]
+            chain = {tail, head, *(b.tail for b in u.behind)}
+            if rest[1] in chain:  # the route comes back: drive up to the turn first
+                return
+            if edges[rest[0], rest[1]]["blocked"] or self._step_blockers(u.uid, rest):
+                return
+            u.behind.append(_Behind(tail, head, u.tail_held))
+            u.route.pop(0)
+            u.prev = tail
+            self._grant(tick, u, rest[1], "grant", "route", f"{head} -> {rest[1]} (ahead)")
+
+    def _release_behind(self, u: _Unit) -> None:
+        """Release, in driving order, the lanes a unit has driven past and the nodes it
+        is ``clear_m`` [m] beyond."""
+        assert u.pos is not None
+        for k, b in enumerate(u.behind):
+            if b.tail_held and math.dist(u.pos, self._xy[b.tail]) > self.clear_m:
+                self.table.release_node(u.uid, b.tail)
+                b.tail_held = False
+            after = u.behind[k + 1].head if k + 1 < len(u.behind) else u.edge_head
+            if b.lane_held and self._passed(u.pos, b.tail, b.head, after):
+                self.table.release_lane(u.uid, b.tail, b.head)
+                b.lane_held = False
+            if b.lane_held:
+                break  # still on this lane: the nodes after it are not reached yet
+        u.behind = [b for b in u.behind if b.tail_held or b.lane_held]
+
+    def _passed(self, pos: tuple[float, float], tail: str, head: str, after: str | None) -> bool:
+        """Has a unit at ``pos`` driven past ``head`` of edge (tail, head): within
+        ``arrive_tol`` of its line across the head, or, within ``clear_m`` of the head,
+        onto the side of the next edge (toward ``after``)?"""
+        (tx, ty), (hx, hy) = self._xy[tail], self._xy[head]
+        length = math.hypot(hx - tx, hy - ty)
+        along = ((pos[0] - tx) * (hx - tx) + (pos[1] - ty) * (hy - ty)) / length
+        if along >= length - self.arrive_tol:
+            return True
+        if after is None or math.hypot(pos[0] - hx, pos[1] - hy) > self.clear_m:
+            return False
+        ax, ay = self._xy[after]
+        return (pos[0] - hx) * (ax - hx) + (pos[1] - hy) * (ay - hy) > 0
 
     def _park(self, tick: _Tick, u: _Unit) -> None:
         node = u.route[0]

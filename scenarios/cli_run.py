@@ -30,7 +30,7 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
         "run",
         help="run one scenario end to end",
         description="Run a scenario: simulated units, the shared map, planners; writes "
-        "metrics.json, freezes.json, report.png and replay.mcap to --out.",
+        "metrics.json, freezes.json, trips.json, report.png and replay.mcap to --out.",
     )
     run.add_argument("scenario", type=Path, help="scenario YAML (see docs/scenarios.md)")
     run.add_argument("--policy", choices=[p.value for p in Policy], help="override the map policy")

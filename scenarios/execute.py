@@ -1,5 +1,5 @@
 """Load a scenario, run it, write its outputs: ``metrics.json``, ``freezes.json``,
-``report.png`` and ``replay.mcap`` in one folder."""
+``trips.json``, ``report.png`` and ``replay.mcap`` in one folder."""
 
 from __future__ import annotations
 
@@ -15,11 +15,13 @@ from scenarios.replay_mcap import REPLAY_FILENAME, write_replay
 from scenarios.report import write_report
 from scenarios.runner import Progress, RunOptions, run
 from scenarios.spec import ScenarioError, load_scenario
+from scenarios.trips_json import write_trips
 
 __all__ = ["ScenarioError", "execute"]
 
 METRICS_FILENAME = "metrics.json"
 FREEZES_FILENAME = "freezes.json"
+TRIPS_FILENAME = "trips.json"
 REPORT_FILENAME = "report.png"
 TOKEN_ENV = "FLEETMAP_TOKEN"  # bearer token for ``--server`` when it needs one
 
@@ -51,6 +53,7 @@ def execute(
     with atomic_output(out / METRICS_FILENAME) as f:
         f.write((json.dumps(record.metrics, indent=2) + "\n").encode())
     write_freezes(record, out / FREEZES_FILENAME)
+    write_trips(record, out / TRIPS_FILENAME)
     write_report(record, out / REPORT_FILENAME)
     write_replay(record, out / REPLAY_FILENAME)
     return record.metrics

@@ -1,5 +1,5 @@
 """What a scenario run records: the input of ``metrics.json``, ``freezes.json``,
-``report.png`` and ``replay.mcap``.
+``trips.json``, ``report.png`` and ``replay.mcap``.
 
 Everything is stamped with sim time [s]; positions are in the map frame [m]. The runner
 appends as it goes; writers only read.
@@ -149,6 +149,24 @@ class FreezeRecord:
     recovery: tuple[RecoveryStep, ...]
 
 
+@dataclass(frozen=True)
+class TripRecord:
+    """A completed trip: task ``task_id`` driven by ``unit_id``, ``assigned`` and ``done``
+    [s] sim time, ``ideal_s`` [s] its congestion-free time (``scenarios.throughput``; None
+    when the lane graph has no route for it)."""
+
+    task_id: str
+    unit_id: str
+    assigned: float
+    done: float
+    ideal_s: float | None
+
+    @property
+    def actual_s(self) -> float:
+        """[s] from assignment to completion."""
+        return self.done - self.assigned
+
+
 @dataclass
 class RunRecord:
     """A whole run: identity, the map's geometry, the units' body (radius, height [m];
@@ -165,6 +183,7 @@ class RunRecord:
     grids: list[GridSample] = field(default_factory=list)
     scans: list[ScanSample] = field(default_factory=list)
     freezes: list[FreezeRecord] = field(default_factory=list)
+    trips: list[TripRecord] = field(default_factory=list)
     time_to_clear: dict[str, float | None] = field(default_factory=dict)
     metrics: dict[str, object] = field(default_factory=dict)
     unit_radius: float | None = None

@@ -7,7 +7,9 @@
 - Top right, a timeline per unit [s]: freezes as bars (red phantom, blue true block),
   events as dashed green lines under the same labels.
 - Bottom right, time to clear [s] per removed (or moved) object, in removal order; one
-  never cleared gets a hatched bar from its removal to the end of the run, "never".
+  never cleared gets a hatched bar from its removal to the end of the run, "never"; and
+  beside it a table of the throughput metrics (docs/throughput.md; "n/a" where a mean
+  has nothing to average).
 - The title names the scenario, policy and seed, and the key metrics; one legend for all
   panels runs along the bottom.
 
@@ -57,6 +59,16 @@ TITLE_METRICS = (
     ("sim_seconds", "sim", "{:.0f} s"),
 )
 
+# (metrics key, label, format) of the throughput table; ``wait_s`` rows follow.
+THROUGHPUT_METRICS = (
+    ("trips_per_unit_hour", "trips per unit-hour", "{:.1f}"),
+    ("ideal_trip_s", "ideal trip (mean)", "{:.1f} s"),
+    ("trip_time_ratio", "actual / ideal trip", "{:.2f}"),
+    ("fleet_efficiency", "fleet efficiency", "{:.1%}"),
+    ("moving_share", "moving, with a task", "{:.1%}"),
+    ("mean_speed_moving", "mean speed moving", "{:.2f} m/s"),
+)
+
 
 def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Draw ``record`` as ``report.png`` (1600 x 900 px) at ``path`` atomically."""
@@ -66,7 +78,9 @@ def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     end = run_end(record)
     _draw_map(figure.add_subplot(grid[:, 0]), record)
     _draw_timeline(figure.add_subplot(grid[0, 1]), record, end)
-    _draw_time_to_clear(figure.add_subplot(grid[1, 1]), record, end)
+    bottom = grid[1, 1].subgridspec(1, 2, width_ratios=(1.6, 1.0))
+    _draw_time_to_clear(figure.add_subplot(bottom[0, 0]), record, end)
+    _draw_throughput(figure.add_subplot(bottom[0, 1]), record)
     figure.suptitle(title(record), fontsize=13)
     _legend(figure, record)
     with atomic_output(path) as f:
@@ -304,6 +318,34 @@ def _draw_time_to_clear(ax: Axes, record: RunRecord, end: float) -> None:
     ax.set_xticks(range(len(objects)), objects, fontsize=9, rotation=30 if len(objects) > 6 else 0)
     ax.margins(y=0.15)
     ax.grid(axis="y", alpha=0.3)
+
+
+def throughput_rows(record: RunRecord) -> list[tuple[str, str]]:
+    """(label, value) rows of the throughput table, for the keys the record has."""
+    rows = []
+    for key, label, fmt in THROUGHPUT_METRICS:
+        if key in record.metrics:
+            value = record.metrics[key]
+            rows.append((label, "n/a" if value is None else fmt.format(value)))
+    wait = record.metrics.get("wait_s")
+    if isinstance(wait, dict):
+        rows += [(f"standing, {cause}", f"{seconds:.1f} s") for cause, seconds in wait.items()]
+    return rows
+
+
+def _draw_throughput(ax: Axes, record: RunRecord) -> None:
+    ax.set_axis_off()
+    ax.set_title("throughput")
+    rows = throughput_rows(record)
+    if not rows:
+        ax.text(0.5, 0.5, "no throughput metrics", ha="center", va="center")
+        return
+    table = ax.table(cellText=rows, colWidths=(0.7, 0.3), loc="upper center", edges="horizontal")
+    table.auto_set_font_size(False)
+    table.set_fontsize(9)
+    table.scale(1.0, 1.3)
+    for (_, col), cell in table.get_celld().items():
+        cell.set_text_props(ha="left" if col == 0 else "right")
 
 
 def _natural_key(text: str) -> list[int | str]:

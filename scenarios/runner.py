@@ -54,6 +54,7 @@ from scenarios.record import (
 )
 from scenarios.spec import Scenario
 from scenarios.tasks import Task
+from scenarios.throughput import ThroughputTracker
 
 Progress = Callable[[float, float], None]
 POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim steps on
@@ -63,13 +64,22 @@ POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim s
 class RunOptions:
     """How a run is observed: map_read_s, lane_refresh_s [s] between reads; what the
     replay keeps: unit poses every ``record_units_s`` [s], scans every ``record_scans_s``
-    [s] per unit, grids every ``record_grids_s`` [s]."""
+    [s] per unit, grids every ``record_grids_s`` [s]. How the fleet is coordinated:
+    lanes split every ``segment_m`` [m] (None: junction to junction) so units can follow
+    one another; ``reserve_ahead``: units are granted their next lanes before they
+    reach the end of the one they drive (False: one lane at a time, on arrival)."""
 
     map_read_s: float = 0.5
     lane_refresh_s: float = 1.0
     record_units_s: float = 0.5
     record_scans_s: float = 0.5
     record_grids_s: float = 5.0
+    segment_m: float | None = 4.0
+    reserve_ahead: bool = True
+
+
+RESERVE_MARGIN_M = 1.0
+"""[m] how much earlier than its braking distance a unit asks for its next lanes."""
 
 
 def run(
@@ -142,9 +152,8 @@ class _Run:
             self._poster = poster
             sim = FleetSim(world, units, seed=setup.seed, poster=poster)
             sim_ref.append(sim)
-            graph = setup.build_lane_graph()
-            clear_m = 2.0 * max(spec.drive.radius for spec in units) + 0.2
-            coordinator = LaneCoordinator(graph, self.client, clear_m=clear_m)
+            graph = setup.build_lane_graph(segment_m=opts.segment_m)
+            coordinator = _coordinator(graph, self.client, units, opts)
             planner = GridPlanner(self.geometry)
             agents = {
                 spec.unit_id: TaskAgent(
@@ -167,6 +176,7 @@ class _Run:
             breakdowns = list(setup.breakdowns())
             dispatcher = _Dispatcher(setup.task_stream())
             detector = FreezeDetector()
+            throughput = ThroughputTracker(graph, setup.dt, coordinator.arrive_tol)
             costs: Grid | None = None
             next_read = next_refresh = next_units = next_grid = 0.0
             next_scan: dict[str, float] = {}
@@ -211,8 +221,10 @@ class _Run:
                                 dispatcher.put_back(task)
                             else:
                                 agent.assign(task, now, node)
+                                throughput.assigned(positions[uid], node, task, now, drive.limits)
                     before = agent.navigator.last_plan
                     state = agent.step(now, positions[uid], costs.data)
+                    throughput.observe(uid, now, agent, state, drive)
                     if state.task_done is not None:
                         tasks_done += 1
                     command = state.command
@@ -255,9 +267,10 @@ class _Run:
                 w.object_id: t for w, t in zip(clearing.watches, clearing.times(), strict=True)
             }
             scans_fused = self._poster.poster.posted
+            self.record.trips = throughput.trips
             self.record.metrics = self._metrics(
                 sim, coordinator, agents, collisions, scans_fused, tasks_done, clearing,
-                time.perf_counter() - wall0, events,
+                time.perf_counter() - wall0, events, throughput,
             )  # fmt: skip
         return self.record
 
@@ -307,7 +320,7 @@ class _Run:
         self.client.publish_units(states)
 
     def _metrics(self, sim, coordinator, agents, collisions, scans_fused, tasks_done, clearing,
-                 wall_seconds, events) -> dict[str, object]:  # fmt: skip
+                 wall_seconds, events, throughput) -> dict[str, object]:  # fmt: skip
         freezes = self.record.freezes
         phantom = [f for f in freezes if f.phantom]
         replans = sum(
@@ -332,6 +345,7 @@ class _Run:
             "deadlocks": coordinator.deadlocks,
             "scans_fused": scans_fused,
             "events": len(events),
+            **throughput.metrics(self.setup.units.count, sim.time),
         }
 
     def _schedule_events(self, sim: FleetSim, clearing: ClearingTracker) -> list:
@@ -388,6 +402,16 @@ class _Dispatcher:
     def put_back(self, task: Task) -> None:
         """A trip its unit could not start yet goes back to the front of the queue."""
         self._pending.insert(0, task)
+
+
+def _coordinator(graph: LaneGraph, client: MapClient, units, opts: RunOptions) -> LaneCoordinator:
+    """The run's lane coordinator: a node is left once a unit's body is clear of it, and
+    with ``opts.reserve_ahead`` units ask for their next lanes a braking distance (plus
+    ``RESERVE_MARGIN_M``) before the end of what they hold."""
+    clear_m = 2.0 * max(spec.drive.radius for spec in units) + 0.2
+    braking_m = max(spec.drive.max_speed**2 / (2 * spec.drive.max_accel) for spec in units)
+    ahead_m = braking_m + RESERVE_MARGIN_M if opts.reserve_ahead else 0.0
+    return LaneCoordinator(graph, client, clear_m=clear_m, reserve_ahead_m=ahead_m)
 
 
 def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:

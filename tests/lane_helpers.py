@@ -72,6 +72,10 @@ def claims(coord: LaneCoordinator) -> tuple[dict, dict]:
     lanes: dict[tuple[str, str], list[tuple[str, str]]] = {}
     for uid in coord.unit_ids:
         st = coord.status(uid)
+        for n in st.behind_nodes:
+            nodes.setdefault(n, []).append(uid)
+        for lane in st.behind_lanes:  # driven past, still under the unit's body
+            lanes.setdefault(lane, []).append((uid, None))
         if st.edge is None:
             nodes.setdefault(st.node, []).append(uid)
             continue
@@ -94,7 +98,10 @@ def check_no_conflicts(coord: LaneCoordinator, positions: dict, min_gap: float) 
     assert set(table) == set(lanes), f"lanes held but unclaimed: {set(table) - set(lanes)}"
     for lane, holders in lanes.items():
         assert len(holders) == 1, f"lane {lane} held by {holders}"
-        assert table[lane] == holders[0], f"lane {lane}: table says {table[lane]}"
+        unit, tail = holders[0]
+        assert table[lane][0] == unit and tail in (None, table[lane][1]), (
+            f"lane {lane}: table says {table[lane]}"
+        )
     for a, b in itertools.combinations(sorted(positions), 2):
         (ax, ay), (bx, by) = positions[a], positions[b]
         assert math.hypot(ax - bx, ay - by) >= min_gap, (
@@ -103,14 +110,17 @@ def check_no_conflicts(coord: LaneCoordinator, positions: dict, min_gap: float) 
 
 
 class Drive:
-    """Units driven by the coordinator: each tick they move ``speed * dt`` toward their
-    status ``target``, report positions, and the no-conflict invariants are checked."""
+    """Units driven by the coordinator: each tick they move ``speed * dt`` along the lanes
+    toward their status ``target`` (through its ``passing`` nodes first), report
+    positions, and the no-conflict invariants are checked. ``moved[uid]``: [m] how far
+    each unit moved on each tick."""
 
     def __init__(self, coord: LaneCoordinator, dt: float = 0.5, speed: float = 1.0) -> None:
         self.coord, self.dt, self.speed = coord, dt, speed
         self.positions: dict[str, tuple[float, float]] = {}
         self.now = 0.0
         self.min_gap = coord.clear_m - coord.arrive_tol - 1e-9
+        self.moved: dict[str, list[float]] = {}
 
     def add(self, uid: str, start: str, goal: str, priority: float = 0.0) -> None:
         self.coord.request(uid, start, goal, priority, self.now)
@@ -119,14 +129,20 @@ class Drive:
     def step(self) -> list:
         self.now += self.dt
         for uid in self.coord.unit_ids:
-            target = self.coord.status(uid).target
-            if target is None:
-                continue
-            (x, y), (tx, ty) = self.positions[uid], self.coord.graph.position(target)
-            gap = math.hypot(tx - x, ty - y)
-            move = min(gap, self.speed * self.dt)
-            if gap > 0:
-                self.positions[uid] = (x + (tx - x) * move / gap, y + (ty - y) * move / gap)
+            status = self.coord.status(uid)
+            via = [*status.passing, status.target] if status.target is not None else []
+            budget = self.speed * self.dt
+            while via and budget > 1e-12:
+                (x, y), (tx, ty) = self.positions[uid], self.coord.graph.position(via[0])
+                gap = math.hypot(tx - x, ty - y)
+                move = min(gap, budget)
+                if gap > 0:
+                    self.positions[uid] = (x + (tx - x) * move / gap, y + (ty - y) * move / gap)
+                budget -= move
+                if move < gap or len(via) == 1:
+                    break
+                via.pop(0)
+            self.moved.setdefault(uid, []).append(self.speed * self.dt - budget)
         decisions = self.coord.tick(self.now, self.positions)
         self.check()
         return decisions

@@ -290,13 +290,13 @@ def scenarios(draw):
     return nx_, ny_, segment_m, one_way, units, sorted(events, key=lambda e: e[0])
 
 
-def play(scenario):
+def play(scenario, reserve_ahead_m=0.0):
     """Drive a scenario, checking the invariants after every tick, refresh and request;
     until a lane is first blocked, also that no corridor is driven both ways at once."""
     nx_, ny_, segment_m, one_way, units, events = scenario
     graph = warehouse_graph(nx_, ny_, segment_m, one_way)
     fake = FakeMap()
-    coord = LaneCoordinator(graph, fake)
+    coord = LaneCoordinator(graph, fake, reserve_ahead_m=reserve_ahead_m)
     drive = Drive(coord)
     for uid, start, goal, priority in units:
         drive.add(uid, start, goal, priority)
@@ -338,15 +338,17 @@ def check_corridors_one_way(coord):
     assert all(len(ends) == 1 for ends in headings.values()), headings
 
 
-@given(scenarios())
-def test_the_coordinator_never_grants_conflicting_lanes(scenario):
-    coord = play(scenario)
+@pytest.mark.parametrize("reserve_ahead_m", [0.0, 2.0])
+@given(scenario=scenarios())
+def test_the_coordinator_never_grants_conflicting_lanes(scenario, reserve_ahead_m):
+    coord = play(scenario, reserve_ahead_m)
     assert all(d.action in ACTIONS for d in coord.log)
 
 
-@given(scenarios())
-def test_the_same_inputs_give_the_same_decisions(scenario):
-    assert play(scenario).log == play(scenario).log
+@pytest.mark.parametrize("reserve_ahead_m", [0.0, 2.0])
+@given(scenario=scenarios())
+def test_the_same_inputs_give_the_same_decisions(scenario, reserve_ahead_m):
+    assert play(scenario, reserve_ahead_m).log == play(scenario, reserve_ahead_m).log
 
 
 # ---------------------------------------------------------------- interface

@@ -34,7 +34,7 @@ from scenarios.record import (
     UnitSample,
 )
 from scenarios.replay_mcap import ReplayFileError, read_geometry, read_scans, write_replay
-from scenarios.report import title, write_report
+from scenarios.report import throughput_rows, title, write_report
 
 GEOMETRY = GridGeometry(width=40, height=30, resolution=0.25, origin_x=-1.0, origin_y=-0.5)
 UNITS = ("u1", "u2", "u10")
@@ -218,6 +218,33 @@ def test_report_title_names_the_run_and_its_key_metrics(record):
     assert head == "moved_pod  |  policy sticky  |  seed 7"
     assert "phantom freezes 1" in metrics and "phantom freeze time 2.5 s" in metrics
     assert "stale-free plans 1" in metrics and "tasks done 4" in metrics
+
+
+def test_report_tables_the_throughput_metrics_with_na_for_a_missing_mean():
+    record = make_record()
+    record.metrics |= {
+        "trips_per_unit_hour": 32.0,
+        "ideal_trip_s": None,
+        "trip_time_ratio": 1.2773,
+        "fleet_efficiency": 0.5018,
+        "moving_share": 0.6724,
+        "mean_speed_moving": 1.2248,
+        "wait_s": {"traffic": 71.5, "freeze": 99.5, "dwell": 50.6, "breakdown": 0.0, "turn": 73.0},
+    }
+    assert throughput_rows(record) == [
+        ("trips per unit-hour", "32.0"),
+        ("ideal trip (mean)", "n/a"),
+        ("actual / ideal trip", "1.28"),
+        ("fleet efficiency", "50.2%"),
+        ("moving, with a task", "67.2%"),
+        ("mean speed moving", "1.22 m/s"),
+        ("standing, traffic", "71.5 s"),
+        ("standing, freeze", "99.5 s"),
+        ("standing, dwell", "50.6 s"),
+        ("standing, breakdown", "0.0 s"),
+        ("standing, turn", "73.0 s"),
+    ]
+    assert throughput_rows(RunRecord("x", "decay", 1, GEOMETRY)) == []
 
 
 def test_report_of_a_run_with_nothing_recorded_still_draws(tmp_path):

@@ -16,7 +16,10 @@ CONTRACT_KEYS = {
     "scenario", "policy", "seed", "units", "sim_seconds", "wall_seconds", "tasks_completed",
     "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes", "stale_free_plans",
     "collisions", "time_to_clear_s", "replans", "deadlocks", "scans_fused",
+    "trips_per_unit_hour", "ideal_trip_s", "trip_time_ratio", "fleet_efficiency",
+    "moving_share", "mean_speed_moving", "wait_s",
 }  # fmt: skip
+WAIT_CAUSES = {"traffic", "freeze", "dwell", "breakdown", "turn"}  # "turn": beyond CONTRACT 3
 
 
 def run(tmp_path, name, *extra):
@@ -38,6 +41,16 @@ def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     assert metrics["scans_fused"] == 2 * 20 * 10  # two units at 10 Hz
     assert len(metrics["time_to_clear_s"]) == 1  # one removal event
     assert isinstance(json.loads((out / "freezes.json").read_text()), list)
+    trips = json.loads((out / "trips.json").read_text())
+    assert len(trips) == metrics["tasks_completed"]
+    for key in ("trips_per_unit_hour", "fleet_efficiency", "moving_share", "mean_speed_moving"):
+        assert isinstance(metrics[key], float) and metrics[key] >= 0, key
+    for key in ("ideal_trip_s", "trip_time_ratio"):  # null: no trip completed
+        assert metrics[key] is None or isinstance(metrics[key], float), key
+    assert (metrics["ideal_trip_s"] is None) == (metrics["tasks_completed"] == 0)
+    assert set(metrics["wait_s"]) == WAIT_CAUSES
+    assert all(isinstance(s, float) and s >= 0 for s in metrics["wait_s"].values())
+    assert sum(metrics["wait_s"].values()) <= 2 * 20.0  # unit-seconds: two units, 20 s
     assert (out / "report.png").read_bytes()[:4] == b"\x89PNG"
     with (out / "replay.mcap").open("rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}

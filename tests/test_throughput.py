@@ -1,0 +1,165 @@
+"""Throughput metrics (scenarios.throughput): ideal trip times worked out by hand, and the
+aggregation of a hand-built sequence of unit-ticks."""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from fleet.unit import DriveLimits
+from mapserver.geometry import GridGeometry
+from planner.lane_graph import LaneGraph
+from planner.navigator import Command
+from scenarios.agents import AgentState
+from scenarios.record import RunRecord, TripRecord
+from scenarios.throughput import ThroughputTracker, ideal_trip_s, run_s
+from scenarios.trips_json import write_trips
+
+LIMITS = DriveLimits(max_speed=1.5, max_accel=1.0, max_turn_rate=1.5)
+
+
+def _task(pickup, dropoff, dwell: float, task_id: str = "t1"):
+    return SimpleNamespace(task_id=task_id, pickup=pickup, dropoff=dropoff, dwell=dwell)
+
+
+def _line(length: float, waypoints: int = 0) -> LaneGraph:
+    """Nodes a (0, 0) and b (length, 0), with ``waypoints`` evenly spaced between."""
+    xs = [length * k / (waypoints + 1) for k in range(waypoints + 2)]
+    names = ["a", *(f"w{k}" for k in range(1, waypoints + 1)), "b"]
+    return LaneGraph(
+        {n: (x, 0.0) for n, x in zip(names, xs, strict=True)},
+        list(zip(names, names[1:], strict=False)),
+    )
+
+
+def test_a_run_is_trapezoidal_when_long_and_triangular_when_short():
+    assert run_s(20.0, LIMITS) == pytest.approx(20.0 / 1.5 + 1.5)  # 14.8333 s
+    assert run_s(1.0, LIMITS) == pytest.approx(2.0)  # 2 sqrt(1 / 1)
+    assert run_s(2.25, LIMITS) == pytest.approx(3.0)  # v^2 / a: both profiles meet
+    assert run_s(0.0, LIMITS) == 0.0
+
+
+def test_a_straight_lane_trip_out_and_back_is_two_runs_a_turn_back_and_two_dwells():
+    graph = _line(20.0, waypoints=3)  # straight-through waypoints do not stop the unit
+    task = _task(pickup=(20.0, 0.2), dropoff=(0.1, 0.0), dwell=3.0)
+    expected = (20 / 1.5 + 1.5) + math.pi / 1.5 + (20 / 1.5 + 1.5) + 2 * 3.0  # 37.7611 s
+    assert ideal_trip_s(graph, (0.0, 0.0), "a", task, LIMITS) == pytest.approx(expected)
+
+
+def test_a_short_trip_is_driven_on_triangular_profiles():
+    graph = _line(1.0)
+    task = _task(pickup=(1.0, 0.0), dropoff=(0.0, 0.0), dwell=0.5)
+    expected = 2.0 + math.pi / 1.5 + 2.0 + 2 * 0.5  # 2 sqrt(L / a) per run
+    assert ideal_trip_s(graph, (0.0, 0.0), "a", task, LIMITS) == pytest.approx(expected)
+
+
+def _l_graph() -> LaneGraph:
+    """a (0, 0) - b (10, 0) - c (10, 5) - d (10, 8), and a detour a - e (0, 8) - c."""
+    positions = {"a": (0, 0), "b": (10, 0), "c": (10, 5), "d": (10, 8), "e": (0, 8)}
+    return LaneGraph(positions, [("a", "b"), ("b", "c"), ("c", "d"), ("a", "e"), ("e", "c")])
+
+
+def test_an_l_shaped_trip_stops_and_turns_a_quarter_at_its_corner():
+    graph = _l_graph()
+    for u, v in (("a", "b"), ("b", "a")):  # blocked and costly: the ideal ignores both
+        graph.graph.edges[u, v].update(blocked=True, weight=1e6, penalty=1e6 - 10)
+    task = _task(pickup=(10.0, 5.0), dropoff=(10.0, 8.0), dwell=2.0)
+    expected = (
+        (10 / 1.5 + 1.5)  # a -> b
+        + (math.pi / 2) / 1.5  # the corner at b
+        + (5 / 1.5 + 1.5)  # b -> c, stop at the pickup; no turn: c -> d goes straight on
+        + (3 / 1.5 + 1.5)  # c -> d
+        + 2 * 2.0
+    )
+    assert ideal_trip_s(graph, (0.0, 0.0), "a", task, LIMITS) == pytest.approx(expected)
+
+
+def test_a_unit_off_its_node_drives_to_it_first_and_one_on_it_does_not():
+    graph = _l_graph()
+    task = _task(pickup=(10.0, 0.0), dropoff=(10.0, 0.0), dwell=0.0)
+    on_node = 10 / 1.5 + 1.5
+    assert ideal_trip_s(graph, (0.07, -0.07), "a", task, LIMITS) == pytest.approx(on_node)
+    off = 2 * math.sqrt(0.5) + (math.pi / 2) / 1.5 + on_node  # 0.5 m up to a, quarter turn
+    assert ideal_trip_s(graph, (0.0, -0.5), "a", task, LIMITS) == pytest.approx(off)
+
+
+def test_a_trip_with_no_route_has_no_ideal_time():
+    graph = LaneGraph({"a": (0, 0), "b": (5, 0)}, [("a", "b")], one_way=[("a", "b")])
+    task = _task(pickup=(0.0, 0.0), dropoff=(0.0, 0.0), dwell=1.0)
+    assert ideal_trip_s(graph, (5.0, 0.0), "b", task, LIMITS) is None
+
+
+# ------------------------------------------------------------------------------ the tracker
+def _state(has_task: bool, blocked: str | None = None, done=None) -> AgentState:
+    kind = "stop" if has_task else "idle"
+    return AgentState(Command(kind), has_task, blocked, (), None, task_done=done)
+
+
+def test_metrics_add_up_a_hand_built_sequence_of_unit_ticks():
+    graph = _line(1.0)
+    task = _task(pickup=(1.0, 0.0), dropoff=(0.0, 0.0), dwell=0.0)
+    ideal = 2.0 + math.pi / 1.5 + 2.0  # 6.0944 s
+    tracker = ThroughputTracker(graph, dt=0.5)
+    tracker.assigned((0.0, 0.0), "a", task, 0.0, LIMITS)
+    idle = SimpleNamespace(broken_until=-math.inf, _dwell_until=None)
+    dwelling = SimpleNamespace(broken_until=-math.inf, _dwell_until=9.0)
+    broken = SimpleNamespace(broken_until=9.0, _dwell_until=9.0)  # a breakdown beats a dwell
+    done = SimpleNamespace(broken_until=-math.inf, _dwell_until=1.0)  # a dwell that is over
+    ticks = [  # (now, agent, state, speed [m/s], turn rate [rad/s])
+        (0.5, idle, _state(True), 1.0, 0.0),  # driving
+        (1.0, idle, _state(True), 2.0, 0.3),  # driving (and steering)
+        (1.5, idle, _state(True), 0.0, 1.5),  # turn
+        (2.0, idle, _state(True, "no path to (1.00, 0.00)"), 0.0, 0.0),  # freeze
+        (2.5, dwelling, _state(True), 0.0, 0.0),  # dwell
+        (3.0, broken, _state(True), 0.0, 0.0),  # breakdown
+        (3.5, done, _state(True), 0.0, 0.0),  # traffic
+        (4.0, idle, _state(True), 0.0, 0.0),  # traffic
+        (4.5, idle, _state(False, done=task), 1.5, 0.0),  # trip done; moving without a task
+        (5.0, idle, _state(False), 0.0, 0.0),  # parked: not counted
+    ]
+    for now, agent, state, speed, turn_rate in ticks:
+        tracker.observe("u1", now, agent, state, SimpleNamespace(speed=speed, turn_rate=turn_rate))
+    assert tracker.trips == [TripRecord("t1", "u1", 0.0, 4.5, pytest.approx(ideal))]
+    assert tracker.trips[0].actual_s == 4.5
+    assert tracker.metrics(units=2, sim_seconds=5.0) == {
+        "trips_per_unit_hour": 360.0,  # 1 trip / (2 units x 5 s / 3600)
+        "ideal_trip_s": round(ideal, 3),
+        "trip_time_ratio": round(4.5 / ideal, 4),
+        "fleet_efficiency": round(ideal / 10.0, 4),
+        "moving_share": 0.25,  # 2 of 8 unit-ticks with a task
+        "mean_speed_moving": 1.5,  # (1.0 + 2.0 + 1.5) / 3
+        "wait_s": {"traffic": 1.0, "freeze": 0.5, "dwell": 0.5, "breakdown": 0.5, "turn": 0.5},
+    }
+
+
+def test_metrics_of_a_run_with_nothing_to_average_are_null():
+    tracker = ThroughputTracker(_line(1.0), dt=0.1)
+    zeros = dict.fromkeys(("traffic", "freeze", "dwell", "breakdown", "turn"), 0.0)
+    assert tracker.metrics(units=3, sim_seconds=60.0) == {
+        "trips_per_unit_hour": 0.0,
+        "ideal_trip_s": None,
+        "trip_time_ratio": None,
+        "fleet_efficiency": 0.0,
+        "moving_share": None,
+        "mean_speed_moving": None,
+        "wait_s": zeros,
+    }
+    assert tracker.metrics(units=3, sim_seconds=0.0)["trips_per_unit_hour"] is None
+
+
+def test_trips_json_lists_each_completed_trip(tmp_path):
+    record = RunRecord("tiny", "decay", 0, GridGeometry(10, 10, 0.5))
+    record.trips += [
+        TripRecord("t2", "u1", 0.0, 30.25, 21.83349),
+        TripRecord("t1", "u2", 1.5, 40.0, None),
+    ]
+    path = write_trips(record, tmp_path / "trips.json")
+    assert json.loads(path.read_text()) == [
+        {"task": "t2", "unit": "u1", "assigned": 0.0, "done": 30.25, "ideal_s": 21.833,
+         "actual_s": 30.25},
+        {"task": "t1", "unit": "u2", "assigned": 1.5, "done": 40.0, "ideal_s": None,
+         "actual_s": 38.5},
+    ]  # fmt: skip
