@@ -22,6 +22,10 @@ Controller: a regulated pure pursuit, after Macenski, Singh, Martin and Gines,
 - *Rotate to heading.* With ``|e| > rotate_to_heading`` [rad] the unit slows to a stand
   and turns in place (as RPP's ``use_rotate_to_heading``); a standing unit turns in
   place until ``|e| <= align_tolerance`` before it drives off.
+- *Corners.* A waypoint where the path turns by more than ``CORNER_RAD`` holds the
+  carrot until the unit has passed it (pure pursuit would cut inside the corner, toward
+  what the path goes around), and the speed there is held so the swing outside it stays
+  within ``CORNER_ERROR_M``.
 - *Stops.* A waypoint where the path turns by more than ``rotate_to_heading``, and the
   last one, is a stop: within ``lookahead`` of it the unit drives straight at it, turning
   toward it and driving only while its heading is within ``align_tolerance``, its speed
@@ -46,6 +50,12 @@ from mapserver.scan import Pose2D
 
 WAYPOINT_TOLERANCE_M = 0.01
 """[m] a stop waypoint is reached when the unit is this close to it."""
+CORNER_RAD = 0.15
+"""[rad] a waypoint where the path turns by more than this is a corner: the carrot stops
+there until the unit has passed it, so the unit does not cut inside it."""
+CORNER_ERROR_M = 0.05
+"""[m] how far outside a corner the unit may swing: its speed there is held to
+``max_turn_rate * CORNER_ERROR_M / (1 - cos(turn))``."""
 
 
 @dataclass(frozen=True)
@@ -184,7 +194,8 @@ class DriveUnit:
                     )
                     target_speed = min(lim.max_speed, braking)
             else:
-                cx, cy = self._carrot(x, y, min(lookahead, to_stop), stop_at)
+                corner_at, to_corner, corner_speed = self._next_corner(x, y, stop_at)
+                cx, cy = self._carrot(x, y, min(lookahead, to_corner), corner_at)
                 error = wrap_angle(math.atan2(cy - y, cx - x) - yaw)
                 standing = self.speed == 0.0
                 if abs(error) > (lim.align_tolerance if standing else lim.rotate_to_heading):
@@ -195,6 +206,7 @@ class DriveUnit:
                     target_speed = min(
                         lim.max_speed,
                         stopping_speed(to_stop, lim.max_accel, dt),
+                        math.sqrt(corner_speed**2 + 2 * lim.max_accel * to_corner),
                         lim.max_turn_rate / abs(curvature) if curvature else math.inf,
                     )
                     speed = max(0.0, min(target_speed, self.speed + dv), self.speed - dv)
@@ -217,17 +229,36 @@ class DriveUnit:
         return self.pose
 
     # ------------------------------------------------------------------ internals
-    def _is_stop(self, i: int) -> bool:
-        """True when the unit must stop at waypoint i: the last, or a turn of the path
-        sharper than ``rotate_to_heading``."""
+    def _turn_at(self, i: int) -> float:
+        """[rad] how much the path turns at waypoint i (pi at the last, or where two
+        waypoints coincide)."""
         if i + 1 >= len(self._path):
-            return True
+            return math.pi
         (ax, ay), (bx, by) = self._path[i], self._path[i + 1]
         px, py = self._path[i - 1] if i > 0 else self._anchor
         if (ax, ay) == (px, py) or (ax, ay) == (bx, by):
-            return True
-        turn = wrap_angle(math.atan2(by - ay, bx - ax) - math.atan2(ay - py, ax - px))
-        return abs(turn) > self.limits.rotate_to_heading
+            return math.pi
+        return abs(wrap_angle(math.atan2(by - ay, bx - ax) - math.atan2(ay - py, ax - px)))
+
+    def _is_stop(self, i: int) -> bool:
+        """True when the unit must stop at waypoint i: the last, or a turn of the path
+        sharper than ``rotate_to_heading``."""
+        return self._turn_at(i) > self.limits.rotate_to_heading
+
+    def _next_corner(self, x: float, y: float, stop_at: int) -> tuple[int, float, float]:
+        """The first corner (``CORNER_RAD``) up to waypoint ``stop_at``: its index, its
+        distance [m] along the path and the speed [m/s] the unit may pass it at."""
+        distance, px, py = 0.0, x, y
+        for i, (wx, wy) in enumerate(self._path[: stop_at + 1]):
+            distance += math.hypot(wx - px, wy - py)
+            turn = self._turn_at(i)
+            if i == stop_at or turn > CORNER_RAD:
+                if i == stop_at:
+                    return i, distance, 0.0
+                swing = self.limits.max_turn_rate * CORNER_ERROR_M / (1.0 - math.cos(turn))
+                return i, distance, min(self.limits.max_speed, swing)
+            px, py = wx, wy
+        raise AssertionError("stop_at is a waypoint of the path")
 
     def _next_stop(self, x: float, y: float) -> tuple[int, float]:
         """The index of the first stop waypoint and its distance [m] along the path."""

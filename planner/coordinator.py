@@ -183,10 +183,6 @@ class _Unit:
     plan_version: int = -1
     behind: list[_Behind] = field(default_factory=list)
 
-    @property
-    def edge_head(self) -> str | None:
-        return None if self.edge is None else self.edge[1]
-
 
 @dataclass(slots=True)
 class _Behind:
@@ -471,34 +467,22 @@ class LaneCoordinator:
             self._grant(tick, u, rest[1], "grant", "route", f"{head} -> {rest[1]} (ahead)")
 
     def _release_behind(self, u: _Unit) -> None:
-        """Release, in driving order, the lanes a unit has driven past and the nodes it
-        is ``clear_m`` [m] beyond."""
+        """Release what a unit has driven past: the lanes before the one it is on now
+        (the lane of its chain nearest to it, the later one on a tie: so a unit cutting
+        a corner has left the first lane once nearer the second) and the nodes it is on
+        or past and ``clear_m`` [m] from."""
         assert u.pos is not None
-        for k, b in enumerate(u.behind):
+        chain = [(b.tail, b.head) for b in u.behind] + ([u.edge] if u.edge else [])
+        gaps = [_segment_distance(u.pos, self._xy[a], self._xy[b]) for a, b in chain]
+        on = min(range(len(chain)), key=lambda k: (gaps[k], -k))
+        for k, b in enumerate(u.behind[: on + 1]):
             if b.tail_held and math.dist(u.pos, self._xy[b.tail]) > self.clear_m:
                 self.table.release_node(u.uid, b.tail)
                 b.tail_held = False
-            after = u.behind[k + 1].head if k + 1 < len(u.behind) else u.edge_head
-            if b.lane_held and self._passed(u.pos, b.tail, b.head, after):
+            if b.lane_held and k < on:
                 self.table.release_lane(u.uid, b.tail, b.head)
                 b.lane_held = False
-            if b.lane_held:
-                break  # still on this lane: the nodes after it are not reached yet
         u.behind = [b for b in u.behind if b.tail_held or b.lane_held]
-
-    def _passed(self, pos: tuple[float, float], tail: str, head: str, after: str | None) -> bool:
-        """Has a unit at ``pos`` driven past ``head`` of edge (tail, head): within
-        ``arrive_tol`` of its line across the head, or, within ``clear_m`` of the head,
-        onto the side of the next edge (toward ``after``)?"""
-        (tx, ty), (hx, hy) = self._xy[tail], self._xy[head]
-        length = math.hypot(hx - tx, hy - ty)
-        along = ((pos[0] - tx) * (hx - tx) + (pos[1] - ty) * (hy - ty)) / length
-        if along >= length - self.arrive_tol:
-            return True
-        if after is None or math.hypot(pos[0] - hx, pos[1] - hy) > self.clear_m:
-            return False
-        ax, ay = self._xy[after]
-        return (pos[0] - hx) * (ax - hx) + (pos[1] - hy) * (ay - hy) > 0
 
     def _park(self, tick: _Tick, u: _Unit) -> None:
         node = u.route[0]
@@ -931,3 +915,14 @@ class LaneCoordinator:
         if u is None:
             raise ValueError(f"unit_id {unit_id!r} is not known to the coordinator")
         return u
+
+
+def _segment_distance(
+    p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
+) -> float:
+    """[m] from point ``p`` to the segment a-b."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    length2 = dx * dx + dy * dy
+    t = 0.0 if length2 == 0 else ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / length2
+    t = min(1.0, max(0.0, t))
+    return math.hypot(p[0] - a[0] - t * dx, p[1] - a[1] - t * dy)

@@ -438,6 +438,35 @@ def _lane_reading(
     )
 
 
+def one_way_loops(n_x: int, n_y: int) -> tuple[tuple[str, str], ...]:
+    """One-way "highways" for the ``n_x`` x ``n_y`` junction grid of ``from_warehouse``,
+    as pairs (a, b) of neighbouring junctions, each stretch driven only a -> b.
+
+    Kiva's traffic pattern (Wurman, D'Andrea and Mountz, *Coordinating Hundreds of
+    Cooperative, Autonomous Vehicles in Warehouses*, AI Magazine 29(1), 2008): the
+    perimeter is one counter-clockwise loop (bottom row east, right column north, top row
+    west, left column south) and the lines inside it alternate, rows starting westward
+    and columns starting northward. Every inside row and column starts on a perimeter
+    side that passes all of them and ends on one that leads back, so every junction can
+    reach every other (the graph is strongly connected) and no lane is ever driven
+    head-on. Needs at least two lanes each way.
+    """
+    if n_x < 2 or n_y < 2:
+        raise ValueError(f"one-way loops need at least 2 x 2 junctions, got {n_x} x {n_y}")
+    pairs: list[tuple[str, str]] = []
+    for iy in range(n_y):
+        east = iy == 0 or (iy != n_y - 1 and iy % 2 == 0)
+        for ix in range(n_x - 1):
+            a, b = f"j{ix}_{iy}", f"j{ix + 1}_{iy}"
+            pairs.append((a, b) if east else (b, a))
+    for ix in range(n_x):
+        north = ix == n_x - 1 or (ix != 0 and ix % 2 == 1)
+        for iy in range(n_y - 1):
+            a, b = f"j{ix}_{iy}", f"j{ix}_{iy + 1}"
+            pairs.append((a, b) if north else (b, a))
+    return tuple(pairs)
+
+
 def _dist(p: tuple[float, float], q: Sequence[float]) -> float:
     return math.hypot(q[0] - p[0], q[1] - p[1])
 

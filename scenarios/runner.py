@@ -41,6 +41,7 @@ from planner.lane_graph import LaneGraph
 from planner.navigator import UnitNavigator
 from scenarios.agents import TaskAgent
 from scenarios.clearing import ClearingTracker
+from scenarios.dispatch import Dispatcher
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.evidence import freeze_records
 from scenarios.fleet_filter import FleetMemberFilter
@@ -53,7 +54,6 @@ from scenarios.record import (
     UnitSample,
 )
 from scenarios.spec import Scenario
-from scenarios.tasks import Task
 from scenarios.throughput import ThroughputTracker
 
 Progress = Callable[[float, float], None]
@@ -67,7 +67,8 @@ class RunOptions:
     [s] per unit, grids every ``record_grids_s`` [s]. How the fleet is coordinated:
     lanes split every ``segment_m`` [m] (None: junction to junction) so units can follow
     one another; ``reserve_ahead``: units are granted their next lanes before they
-    reach the end of the one they drive (False: one lane at a time, on arrival)."""
+    reach the end of the one they drive (False: one lane at a time, on arrival);
+    ``dispatch``: which idle unit gets a released trip (``scenarios.dispatch.RULES``)."""
 
     map_read_s: float = 0.5
     lane_refresh_s: float = 1.0
@@ -76,6 +77,7 @@ class RunOptions:
     record_grids_s: float = 5.0
     segment_m: float | None = 4.0
     reserve_ahead: bool = True
+    dispatch: str = "nearest"
 
 
 RESERVE_MARGIN_M = 1.0
@@ -174,7 +176,7 @@ class _Run:
             clearing = ClearingTracker(self.geometry)
             events = self._schedule_events(sim, clearing)
             breakdowns = list(setup.breakdowns())
-            dispatcher = _Dispatcher(setup.task_stream())
+            dispatcher = Dispatcher(setup.task_stream(), graph, opts.dispatch)
             detector = FreezeDetector()
             throughput = ThroughputTracker(graph, setup.dt, coordinator.arrive_tol)
             costs: Grid | None = None
@@ -211,17 +213,17 @@ class _Run:
                     self.record.events.append(
                         EventRecord(now, event.kind, event.unit_id, x, y, event.describe())
                     )
+                idle = {
+                    uid: node
+                    for uid, agent in agents.items()
+                    if agent.task is None and now >= agent.broken_until
+                    if (node := _start_node(coordinator, graph, uid, positions[uid])) is not None
+                }
+                for uid, task in dispatcher.match(now, idle):
+                    agents[uid].assign(task, now, idle[uid])
+                    throughput.assigned(positions[uid], idle[uid], task, now, sim.unit(uid).limits)
                 for uid, agent in agents.items():
                     drive = sim.unit(uid)
-                    if agent.task is None and now >= agent.broken_until:
-                        task = dispatcher.next_for(uid, now)
-                        if task is not None:
-                            node = _start_node(coordinator, graph, uid, positions[uid])
-                            if node is None:
-                                dispatcher.put_back(task)
-                            else:
-                                agent.assign(task, now, node)
-                                throughput.assigned(positions[uid], node, task, now, drive.limits)
                     before = agent.navigator.last_plan
                     state = agent.step(now, positions[uid], costs.data)
                     throughput.observe(uid, now, agent, state, drive)
@@ -376,32 +378,6 @@ class _Run:
                 clearing.removed(object_id, before.shape.bounds(), sim.time)
 
         return apply
-
-
-class _Dispatcher:
-    """Hands released trips to idle units: a trip meant for a unit only to it, others to
-    whichever unit asks first (units ask in id order each tick)."""
-
-    def __init__(self, stream) -> None:
-        self._stream = stream
-        self._pending: list[Task] = []
-        self._exhausted = False
-
-    def next_for(self, unit_id: str, now: float) -> Task | None:
-        while not self._exhausted and len(self._pending) < 64:
-            task = next(self._stream, None)
-            if task is None:
-                self._exhausted = True
-            else:
-                self._pending.append(task)
-        for i, task in enumerate(self._pending):
-            if task.release <= now and task.unit in (None, unit_id):
-                return self._pending.pop(i)
-        return None
-
-    def put_back(self, task: Task) -> None:
-        """A trip its unit could not start yet goes back to the front of the queue."""
-        self._pending.insert(0, task)
 
 
 def _coordinator(graph: LaneGraph, client: MapClient, units, opts: RunOptions) -> LaneCoordinator:

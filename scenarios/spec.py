@@ -302,7 +302,7 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
         max(drive.radius, map_server.inflation.inscribed_radius) + map_server.grid.resolution
     )
     storage, storage_paths = parse_storage(doc, lf, layout)
-    one_way = parse_one_way(doc, lf)
+    one_way = parse_one_way(doc, lf, layout)
     check_stops(doc, lf, layout, storage, storage_paths, one_way, clearance)
 
     units = _units(doc, uf, layout, drive, lidar, noise, clearance)

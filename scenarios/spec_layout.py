@@ -24,13 +24,15 @@ import numpy as np
 
 from fleet.boxworld import BoxWorld, Warehouse
 from fleet.layout import Kind, Layout, LayoutError
-from planner.lane_graph import LaneGraph
+from planner.lane_graph import LaneGraph, one_way_loops
 from scenarios.spec_yaml import Document, FieldPath, Fields, field_path
 
 Point = tuple[float, float]
 
 MAX_FLOOR_M = 500.0
 LAYOUT_KEYS = ("warehouse", "floor", "lanes", "obstacles", "stations", "storage", "one_way")
+ONE_WAY_LOOPS = "loops"
+"""``layout.one_way: loops``: every lane one way, Kiva-style (``one_way_loops``)."""
 WAREHOUSE_FIELDS: Mapping[str, tuple[str, dict[str, Any]]] = {
     # scenario key: (warehouse_layout argument, its bounds here)
     "width": ("width_m", {"unit": "metres", "low": 0, "low_open": True, "high": MAX_FLOOR_M}),
@@ -152,8 +154,19 @@ def check_clear(
             )
 
 
-def parse_one_way(doc: Document, lf: Fields) -> tuple[tuple[str, str], ...]:
-    """The ``one_way`` pairs ``[junction_a, junction_b]`` (checked by ``check_lanes``)."""
+def parse_one_way(doc: Document, lf: Fields, layout: Layout) -> tuple[tuple[str, str], ...]:
+    """The ``one_way`` pairs ``[junction_a, junction_b]`` (checked by ``check_lanes``), or
+    ``loops``: Kiva-style one-way highways over the whole lane grid (``one_way_loops``)."""
+    if lf.get("one_way") == ONE_WAY_LOOPS:
+        n_x, n_y = len(layout.lane_x), len(layout.lane_y)
+        try:
+            return one_way_loops(n_x, n_y)
+        except ValueError as exc:
+            raise doc.error(lf.at("one_way"), str(exc), ONE_WAY_LOOPS) from None
+    if isinstance(lf.get("one_way"), str):
+        raise doc.error(
+            lf.at("one_way"), f"must be {ONE_WAY_LOOPS!r} or a list of pairs", lf.get("one_way")
+        )
     pairs = []
     for where, item in lf.items("one_way"):
         if not (

@@ -6,7 +6,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fleet.unit import WAYPOINT_TOLERANCE_M, DriveLimits, DriveUnit, stopping_speed
+from fleet.unit import (
+    CORNER_ERROR_M,
+    WAYPOINT_TOLERANCE_M,
+    DriveLimits,
+    DriveUnit,
+    stopping_speed,
+)
 from mapserver.scan import Pose2D
 
 LIMITS = DriveLimits(max_speed=1.5, max_accel=1.0, max_turn_rate=1.5)
@@ -110,3 +116,37 @@ def test_any_path_is_driven_to_its_end_within_the_limits(dt, speed, accel, turn,
     assert max(speeds) <= speed + 1e-9
     assert all(abs(b - a) <= accel * dt + 1e-9 for a, b in zip(speeds, speeds[1:], strict=False))
     assert all(abs(w) <= turn + 1e-12 for _, w, _ in trace)
+
+
+def test_a_gentle_bend_is_driven_through_without_stopping():
+    # 30 degrees, under rotate_to_heading: the unit slows to the corner speed (a swing of
+    # at most CORNER_ERROR_M outside it at full turn rate), turns, and never stops.
+    unit = DriveUnit("u1", Pose2D(0.0, 0.0, 0.0), LIMITS)
+    bend = (6.0 + 6.0 * math.cos(math.pi / 6), 6.0 * math.sin(math.pi / 6))
+    unit.follow([(6.0, 0.0), bend])
+    trace = drive(unit, 0.05)
+    corner_speed = LIMITS.max_turn_rate * CORNER_ERROR_M / (1 - math.cos(math.pi / 6))
+    around = [s for s, _, p in trace if 4.0 < p.x < 9.0]
+    assert min(around) >= 0.9 * corner_speed > 0.3
+    assert max(s for s, _, p in trace if p.x < 3.0) == pytest.approx(LIMITS.max_speed)
+    inside = [p for _, _, p in trace if p.x > 6.0]  # past the corner: not cut inside it
+    assert all(p.y <= math.tan(math.pi / 6) * (p.x - 6.0) + 1e-9 for p in inside)
+    assert all(abs(w) <= LIMITS.max_turn_rate + 1e-12 for _, w, _ in trace)
+    end = trace[-1][2]
+    assert math.hypot(end.x - bend[0], end.y - bend[1]) <= WAYPOINT_TOLERANCE_M
+
+
+def test_a_unit_standing_off_its_heading_turns_in_place_before_it_drives():
+    unit = DriveUnit("u1", Pose2D(0.0, 0.0, 0.0), LIMITS)
+    unit.follow([(0.0, 5.0)])  # 90 degrees to its left
+    trace = drive(unit, 0.1)
+    first_move = next(i for i, (s, _, _) in enumerate(trace) if s > 0)
+    assert abs(trace[first_move - 1][2].yaw - math.pi / 2) <= LIMITS.align_tolerance
+    assert all(s == 0.0 for s, _, _ in trace[:first_move])
+
+
+def test_lookahead_limits_are_checked():
+    with pytest.raises(ValueError, match=r"max_lookahead must be >= min_lookahead .*got 0.1"):
+        DriveLimits(min_lookahead=0.4, max_lookahead=0.1)
+    with pytest.raises(ValueError, match=r"rotate_to_heading must be in .*got 0.05"):
+        DriveLimits(rotate_to_heading=0.05)

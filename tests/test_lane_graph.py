@@ -223,3 +223,15 @@ def test_corridors_chain_the_waypoints_and_stations_of_one_stretch(warehouse):
     assert g.corridors[g.graph.edges["j0_0", "j0_1"]["corridor"]] == ("j0_0", "j0_1")
     assert {"j0_0", "j1_0"} <= g.corridor_ends and "S1" not in g.corridor_ends
     assert sum(len(c) - 1 for c in g.corridors) == len(g.lanes)  # every lane in one corridor
+
+
+@pytest.mark.parametrize(("n_x", "n_y"), [(2, 2), (3, 2), (2, 5), (6, 9), (7, 4)])
+def test_one_way_loops_are_strongly_connected_with_every_stretch_one_way(n_x, n_y):
+    import networkx as nx
+
+    from planner.lane_graph import one_way_loops
+
+    pairs = one_way_loops(n_x, n_y)
+    assert len(pairs) == (n_x - 1) * n_y + n_x * (n_y - 1)  # every stretch, once
+    assert len({tuple(sorted(p)) for p in pairs}) == len(pairs)
+    assert nx.is_strongly_connected(nx.DiGraph(pairs))

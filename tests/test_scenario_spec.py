@@ -302,6 +302,13 @@ ERRORS = [
         "not a lane",
     ),  # fmt: skip
     (
+        "  storage:",
+        "  one_way: circles\n  storage:",
+        "layout.one_way",
+        "one_way",
+        "must be 'loops' or a list of pairs",
+    ),  # fmt: skip
+    (
         "map_server:",
         "map_server:\n  resolution: 0.001",
         "map_server.resolution",
@@ -476,3 +483,15 @@ def test_a_valid_scenario_with_any_one_value_changed_raises_nothing_but_scenario
     path, value
 ):
     _only_scenario_errors(yaml.safe_dump(_mutate(yaml.safe_load(BASE), path, value)))
+
+
+def test_one_way_loops_make_every_lane_one_way_and_keep_every_junction_reachable(tmp_path):
+    import networkx as nx
+
+    text = BASE.replace("  storage:", "  one_way: loops\n  storage:", 1)
+    scenario = load_text(text, tmp_path)
+    perimeter = {("j0_0", "j1_0"), ("j1_0", "j1_1"), ("j1_1", "j0_1"), ("j0_1", "j0_0")}
+    assert set(scenario.one_way) == perimeter  # counter-clockwise
+    graph = scenario.build_lane_graph(segment_m=2.0).graph
+    assert nx.is_strongly_connected(graph)
+    assert all(not graph.has_edge(b, a) for a, b in graph.edges)  # no lane both ways
