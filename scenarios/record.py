@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fleet.sim import CollisionEvent
 from mapserver.geometry import GridGeometry
 from mapserver.scan import PoseStd
 
@@ -184,6 +185,7 @@ class RunRecord:
     scans: list[ScanSample] = field(default_factory=list)
     freezes: list[FreezeRecord] = field(default_factory=list)
     trips: list[TripRecord] = field(default_factory=list)
+    collisions: list[CollisionEvent] = field(default_factory=list)
     time_to_clear: dict[str, float | None] = field(default_factory=dict)
     metrics: dict[str, object] = field(default_factory=dict)
     unit_radius: float | None = None

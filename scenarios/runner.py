@@ -187,6 +187,7 @@ class _Run:
                 step = sim.step(setup.dt)
                 now = step.time
                 collisions += len(step.collisions)
+                self.record.collisions.extend(step.collisions)
                 for scan in step.scans:
                     self._scan_index.setdefault(scan.stamp, []).append(
                         (scan.unit_id, scan.pose.x, scan.pose.y, scan.range_max)
