@@ -8,12 +8,15 @@ appends as it goes; writers only read.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fleet.sim import CollisionEvent
 from mapserver.geometry import GridGeometry
 from mapserver.scan import PoseStd
+
+if TYPE_CHECKING:
+    from fleet.sim import CollisionEvent  # imports pybullet
 
 
 @dataclass(frozen=True)
