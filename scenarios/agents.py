@@ -143,6 +143,11 @@ class TaskAgent:
         return AgentState(Command("idle"), False, None, (), None, task_done=done)
 
     @property
+    def dwell_until(self) -> float | None:
+        """[s] when the dwell at this leg's stop ends (None: not dwelling)."""
+        return self._dwell_until
+
+    @property
     def last_plan_made(self) -> float:
         """[s] when the navigator last planned."""
         return self._last_plan

@@ -54,10 +54,11 @@ WAIT_CAUSES = ("traffic", "freeze", "dwell", "breakdown", "turn")
 
 
 class Agent(Protocol):
-    """What the tracker reads of a ``TaskAgent``: until when [s] it is broken down (its
-    private ``_dwell_until`` [s], the end of a dwell, is read with ``getattr``)."""
+    """What the tracker reads of a ``TaskAgent``: until when [s] it is broken down, and
+    until when it dwells at a stop (None: not dwelling)."""
 
     broken_until: float
+    dwell_until: float | None
 
 
 class Drive(Protocol):
@@ -136,8 +137,7 @@ def standing_cause(now: float, agent: Agent, state: AgentState, drive: Drive) ->
     """Why a unit with a task stands still at ``now`` [s] (one of ``WAIT_CAUSES``)."""
     if now < agent.broken_until:
         return "breakdown"
-    dwell_until = getattr(agent, "_dwell_until", None)
-    if dwell_until is not None and now < dwell_until:
+    if agent.dwell_until is not None and now < agent.dwell_until:
         return "dwell"
     if state.blocked_reason is not None:
         return "freeze"

@@ -104,10 +104,10 @@ def test_metrics_add_up_a_hand_built_sequence_of_unit_ticks():
     ideal = 2.0 + math.pi / 1.5 + 2.0  # 6.0944 s
     tracker = ThroughputTracker(graph, dt=0.5)
     tracker.assigned((0.0, 0.0), "a", task, 0.0, LIMITS)
-    idle = SimpleNamespace(broken_until=-math.inf, _dwell_until=None)
-    dwelling = SimpleNamespace(broken_until=-math.inf, _dwell_until=9.0)
-    broken = SimpleNamespace(broken_until=9.0, _dwell_until=9.0)  # a breakdown beats a dwell
-    done = SimpleNamespace(broken_until=-math.inf, _dwell_until=1.0)  # a dwell that is over
+    idle = SimpleNamespace(broken_until=-math.inf, dwell_until=None)
+    dwelling = SimpleNamespace(broken_until=-math.inf, dwell_until=9.0)
+    broken = SimpleNamespace(broken_until=9.0, dwell_until=9.0)  # a breakdown beats a dwell
+    done = SimpleNamespace(broken_until=-math.inf, dwell_until=1.0)  # a dwell that is over
     ticks = [  # (now, agent, state, speed [m/s], turn rate [rad/s])
         (0.5, idle, _state(True), 1.0, 0.0),  # driving
         (1.0, idle, _state(True), 2.0, 0.3),  # driving (and steering)
