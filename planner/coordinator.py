@@ -268,6 +268,10 @@ class LaneCoordinator:
         """Known units in natural id order."""
         return tuple(u.uid for u in self._sorted)
 
+    def knows(self, unit_id: str) -> bool:
+        """Has ``unit_id`` been given a task (it holds a node or a lane)?"""
+        return unit_id in self._units
+
     def status(self, unit_id: str) -> UnitStatus:
         """What ``unit_id`` is doing (``UnitStatus``)."""
         u = self._unit(unit_id)

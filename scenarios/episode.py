@@ -368,7 +368,7 @@ def _coordinator(graph: LaneGraph, client: MapClient, units, opts: RunOptions) -
 def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:
     """Where a unit's trip starts: the node it stands at or drives to (None: stranded on a
     lane); a unit the coordinator does not know yet is at the nearest node nobody holds."""
-    if uid not in coordinator.unit_ids:  # the nearest node nobody holds
+    if not coordinator.knows(uid):  # the nearest node nobody holds
         free = [n for n in graph.nodes if coordinator.holder(n) is None]
         return min(free, key=lambda n: (math.dist(graph.position(n), position), n), default=None)
     status = coordinator.status(uid)

@@ -10,6 +10,7 @@ before posting.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
@@ -43,19 +44,46 @@ class FleetMemberFilter:
         return self.poster.flush()
 
     def _filter(self, scan: Scan, units: Mapping[str, tuple[float, float, float]]) -> Scan:
-        others = [(x, y, r) for uid, (x, y, r) in units.items() if uid != scan.unit_id]
-        if not others:
-            return scan
+        """``scan`` with the returns that end on another unit's footprint (plus
+        ``margin``) invalid. Only the beams that point at a unit within range are looked
+        at: those within ``asin((radius + margin) / distance)`` of its bearing."""
         r = scan.ranges
-        angles = scan.pose.yaw + scan.angle_min + scan.angle_increment * np.arange(r.size)
+        n = r.size
+        ox, oy = scan.pose.x, scan.pose.y
+        beams: list[np.ndarray] = []
+        near: list[tuple[float, float, float]] = []
+        for uid, (x, y, radius) in units.items():
+            reach = radius + self.margin
+            d = math.hypot(x - ox, y - oy)
+            if uid == scan.unit_id or d - reach > scan.range_max:
+                continue
+            near.append((x, y, reach))
+            if d <= reach or scan.angle_increment * n < 2 * math.asin(min(1.0, reach / d)):
+                beams.append(np.arange(n))  # around the sensor: look at every beam
+                continue
+            half = math.asin(reach / d)
+            centre = math.atan2(y - oy, x - ox) - scan.pose.yaw - scan.angle_min
+            first = math.floor((centre - half) / scan.angle_increment)
+            last = math.ceil((centre + half) / scan.angle_increment)
+            index = np.arange(first, last + 1)
+            if scan.angle_increment * n >= 2 * math.pi - 1e-9:  # a full turn wraps
+                index %= n
+            beams.append(index[(index >= 0) & (index < n)])
+        if not beams:
+            return scan
+        index = np.unique(np.concatenate(beams))
+        angles = scan.pose.yaw + scan.angle_min + scan.angle_increment * index
+        ranges = r[index]
         with np.errstate(invalid="ignore"):
-            finite = np.isfinite(r)
-            ex = scan.pose.x + np.where(finite, r, 0.0) * np.cos(angles)
-            ey = scan.pose.y + np.where(finite, r, 0.0) * np.sin(angles)
-        hit = np.zeros(r.size, dtype=bool)
-        for x, y, radius in others:
-            hit |= finite & (np.hypot(ex - x, ey - y) <= radius + self.margin)
+            finite = np.isfinite(ranges)
+            ex = ox + np.where(finite, ranges, 0.0) * np.cos(angles)
+            ey = oy + np.where(finite, ranges, 0.0) * np.sin(angles)
+        hit = np.zeros(index.size, dtype=bool)
+        for x, y, reach in near:
+            hit |= finite & (np.hypot(ex - x, ey - y) <= reach)
         if not hit.any():
             return scan
         self.dropped += int(hit.sum())
-        return replace(scan, ranges=np.where(hit, np.nan, r))
+        out = r.copy()
+        out[index[hit]] = np.nan
+        return replace(scan, ranges=out)

@@ -77,11 +77,13 @@ def test_a_bad_scenario_is_a_clear_error(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    "name", ["static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift"]
-)
+    "name",
+    ["static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift",
+     "hundred_units"],
+)  # fmt: skip
 def test_every_shipped_scenario_runs_to_completion(tmp_path, name):
     """Cut to the first 10 simulated seconds (later events never fire); the full runs take
-    minutes (busy_shift ~4)."""
+    minutes (busy_shift and hundred_units ~3-5)."""
     scenario = replace(load_scenario(f"scenarios/{name}.yaml"), duration=10.0)
     record = runner.run(scenario)
     assert CONTRACT_KEYS <= set(record.metrics)

@@ -30,7 +30,10 @@ from scenarios.spec import (
 )
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
-SHIPPED = ("static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift", "tiny")
+SHIPPED = (
+    "static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift",
+    "hundred_units", "tiny",
+)  # fmt: skip
 
 BASE = """\
 name: base
