@@ -112,6 +112,15 @@ class DriveLimits:
         return min(self.max_lookahead, max(self.min_lookahead, speed * self.lookahead_time))
 
 
+def corner_speed(limits: DriveLimits, turn: float) -> float:
+    """[m/s] the speed the unit passes a corner turning by ``turn`` [rad] at: max_speed on
+    a bend up to ``CORNER_RAD``, else held so that at full turn rate it swings at most
+    ``CORNER_ERROR_M`` outside the corner."""
+    if turn <= CORNER_RAD:
+        return limits.max_speed
+    return min(limits.max_speed, limits.max_turn_rate * CORNER_ERROR_M / (1.0 - math.cos(turn)))
+
+
 def stopping_speed(distance: float, accel: float, dt: float) -> float:
     """[m/s] the highest speed from which braking by ``accel * dt`` [m/s] per step of
     ``dt`` [s] covers exactly ``distance`` [m] and then stands still (module docstring).
@@ -252,11 +261,10 @@ class DriveUnit:
         for i, (wx, wy) in enumerate(self._path[: stop_at + 1]):
             distance += math.hypot(wx - px, wy - py)
             turn = self._turn_at(i)
-            if i == stop_at or turn > CORNER_RAD:
-                if i == stop_at:
-                    return i, distance, 0.0
-                swing = self.limits.max_turn_rate * CORNER_ERROR_M / (1.0 - math.cos(turn))
-                return i, distance, min(self.limits.max_speed, swing)
+            if i == stop_at:
+                return i, distance, 0.0
+            if turn > CORNER_RAD:
+                return i, distance, corner_speed(self.limits, turn)
             px, py = wx, wy
         raise AssertionError("stop_at is a waypoint of the path")
 

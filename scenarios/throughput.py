@@ -8,17 +8,24 @@ trip starts from, via the pickup node (``nearest_node(*task.pickup)``), to the d
 node (``nearest_node(*task.dropoff)``); the unit's position at assignment is put in front
 when it is more than ``at_node_m`` from that node (the runner passes the lane
 coordinator's ``arrive_tol``: a unit that close to a node has arrived there). The route
-is a polyline driven by one unit alone at its ``DriveLimits``:
+is a polyline driven by one unit alone at its ``DriveLimits`` (``v`` max_speed [m/s],
+``a`` max_accel [m/s^2], ``w`` max_turn_rate [rad/s]) the way this drive drives
+(``fleet.unit``):
 
-- the polyline is cut into straight runs at every corner turning by more than
-  ``CORNER_RAD``, and at the pickup (where the unit stops to dwell);
-- each run of length ``L`` [m] is driven from rest to rest, trapezoidal speed profile
-  (``run_s``): ``L / v + v / a`` if ``L >= v^2 / a``, else triangular ``2 sqrt(L / a)``
-  (``v`` max_speed [m/s], ``a`` max_accel [m/s^2]);
-- at each corner, the pickup included, the unit turns in place by the corner's angle
-  ``|theta|`` [rad] (a turn back is pi) at max_turn_rate: ``|theta| / max_turn_rate`` [s];
-  the heading it starts with is not counted;
+- each leg (to the pickup, then to the dropoff) from rest to rest, as fast as ``v`` and
+  ``a`` allow (``leg_s``: a speed cap at every corner, a forward pass for speeding up
+  and a backward pass for braking, trapezoids between; a straight leg of length ``L`` is
+  ``L / v + v / a``, or ``2 sqrt(L / a)`` when too short to reach ``v``);
+- a corner turning by ``theta`` is passed at the drive's ``corner_speed(theta)``; one
+  sharper than ``rotate_to_heading`` at ``corner_speed(theta / 2)`` (the navigator's
+  line-of-sight shortcut cuts it into two half bends); one sharper than twice that is a
+  stop with a turn on the spot, ``theta / w``;
+- at the pickup the unit turns on the spot from the way it came to the way it leaves
+  (a turn back is pi): ``|theta| / w`` [s]; the heading it starts with is not counted;
 - plus ``task.dwell`` [s] at the pickup and again at the dropoff.
+
+The lane route's length is kept: where the floor is open enough for the navigator to
+cut across it, a unit can still beat the ideal.
 
 Standing still, by cause (``standing_cause``), for a unit with a task and speed 0 over a
 tick: ``breakdown`` (broken down), ``dwell`` (dwelling at a stop), ``freeze`` (no
@@ -36,7 +43,7 @@ from typing import Protocol
 import networkx as nx
 
 from fleet.shapes import wrap_angle
-from fleet.unit import DriveLimits
+from fleet.unit import DriveLimits, corner_speed
 from planner.lane_graph import LaneGraph
 from scenarios.agents import AgentState
 from scenarios.record import TripRecord
@@ -44,8 +51,6 @@ from scenarios.tasks import Task
 
 Point = tuple[float, float]
 
-CORNER_RAD = 1e-6
-"""[rad] a polyline vertex turning by more than this is a corner (stop, turn in place)."""
 AT_NODE_M = 0.1
 """[m] default ``at_node_m``: a unit this close to its start node stands on it (the lane
 coordinator's default ``arrive_tol``)."""
@@ -72,31 +77,66 @@ class Drive(Protocol):
 def run_s(length: float, limits: DriveLimits) -> float:
     """[s] to drive ``length`` [m] straight from rest to rest at ``limits`` (trapezoidal
     speed profile, triangular when too short to reach max_speed)."""
+    return segment_s(length, 0.0, 0.0, limits)
+
+
+def segment_s(length: float, v0: float, v1: float, limits: DriveLimits) -> float:
+    """[s] to drive ``length`` [m] straight, entering at ``v0`` and leaving at ``v1``
+    [m/s] (both reachable within it), as fast as max_speed and max_accel allow."""
     v, a = limits.max_speed, limits.max_accel
-    if length >= v * v / a:
-        return length / v + v / a
-    return 2.0 * math.sqrt(max(length, 0.0) / a)
+    peak = min(v, math.sqrt(max(a * length + (v0 * v0 + v1 * v1) / 2, 0.0)))
+    ramps = (2 * peak * peak - v0 * v0 - v1 * v1) / (2 * a)  # [m] speeding up and braking
+    cruise = max(length - ramps, 0.0) / peak if peak > 0 else 0.0
+    return (peak - v0) / a + (peak - v1) / a + cruise
+
+
+def leg_s(leg: Sequence[Point], limits: DriveLimits) -> float:
+    """[s] to drive polyline ``leg`` [m] from rest to rest (module docstring): corners
+    passed at the drive's ``corner_speed``, a corner sharper than ``rotate_to_heading``
+    as the two half bends the navigator's shortcut makes of it, and one it cannot cut
+    so (over twice ``rotate_to_heading``) stopped at and turned on the spot."""
+    points = [p for k, p in enumerate(leg) if k == 0 or p != leg[k - 1]]
+    lengths = [math.dist(p, q) for p, q in pairwise(points)]
+    caps, turns_s = [0.0], 0.0
+    for p, q, r in zip(points, points[1:], points[2:], strict=False):
+        turn = abs(wrap_angle(_bearing(q, r) - _bearing(p, q)))
+        if turn <= limits.rotate_to_heading:
+            caps.append(corner_speed(limits, turn))
+        elif turn / 2 <= limits.rotate_to_heading:
+            caps.append(corner_speed(limits, turn / 2))
+        else:
+            caps.append(0.0)
+            turns_s += turn / limits.max_turn_rate
+    caps.append(0.0)
+    a = limits.max_accel
+    for k in range(1, len(caps)):  # speeding up from the corner before
+        caps[k] = min(caps[k], math.sqrt(caps[k - 1] ** 2 + 2 * a * lengths[k - 1]))
+    for k in range(len(caps) - 2, -1, -1):  # braking for the corner after
+        caps[k] = min(caps[k], math.sqrt(caps[k + 1] ** 2 + 2 * a * lengths[k]))
+    driving = sum(segment_s(s, caps[k], caps[k + 1], limits) for k, s in enumerate(lengths))
+    return driving + turns_s
 
 
 def drive_s(legs: Sequence[Sequence[Point]], limits: DriveLimits) -> float:
     """[s] to drive ``legs`` (polylines [m], each ending at a stop, each starting where
-    the one before ends) alone at ``limits``: straight runs between corners and stops,
-    plus the turns in place at corners and between legs (module docstring)."""
-    total, run, heading = 0.0, 0.0, None
+    the one before ends) alone at ``limits``, plus the turn on the spot between one leg's
+    last stretch and the next one's first (module docstring)."""
+    total, heading = 0.0, None
     for leg in legs:
-        for (x0, y0), (x1, y1) in pairwise(leg):
-            length = math.hypot(x1 - x0, y1 - y0)
-            if length == 0.0:
-                continue
-            bearing = math.atan2(y1 - y0, x1 - x0)
-            turn = 0.0 if heading is None else abs(wrap_angle(bearing - heading))
-            if turn > CORNER_RAD:
-                total += run_s(run, limits) + turn / limits.max_turn_rate
-                run = 0.0
-            heading, run = bearing, run + length
-        total += run_s(run, limits)  # stop at the leg's end
-        run = 0.0
+        points = [p for k, p in enumerate(leg) if k == 0 or p != leg[k - 1]]
+        if len(points) < 2:
+            continue
+        if heading is not None:  # turn on the spot at the stop between the legs
+            total += abs(wrap_angle(_bearing(points[0], points[1]) - heading)) / (
+                limits.max_turn_rate
+            )
+        total += leg_s(points, limits)
+        heading = _bearing(points[-2], points[-1])
     return total
+
+
+def _bearing(p: Point, q: Point) -> float:
+    return math.atan2(q[1] - p[1], q[0] - p[0])
 
 
 def trip_legs(

@@ -62,18 +62,29 @@ def _l_graph() -> LaneGraph:
     return LaneGraph(positions, [("a", "b"), ("b", "c"), ("c", "d"), ("a", "e"), ("e", "c")])
 
 
-def test_an_l_shaped_trip_stops_and_turns_a_quarter_at_its_corner():
+# A quarter turn is cut into two 45-degree bends, passed at the drive's corner speed:
+# at full turn rate 1.5 rad/s the swing outside stays within CORNER_ERROR_M (0.05 m).
+CORNER = 1.5 * 0.05 / (1 - math.cos(math.pi / 4))  # [m/s] = 0.2561
+
+
+def _stretch(length: float, v0: float, v1: float) -> float:
+    """[s] over ``length`` [m] from v0 up to 1.5 m/s, cruising, braking to v1 at 1 m/s^2."""
+    ramps = (2 * 1.5**2 - v0**2 - v1**2) / 2  # [m] covered speeding up and braking
+    return (1.5 - v0) + (1.5 - v1) + (length - ramps) / 1.5
+
+
+def test_an_l_shaped_trip_slows_for_its_corner_without_stopping():
     graph = _l_graph()
     for u, v in (("a", "b"), ("b", "a")):  # blocked and costly: the ideal ignores both
         graph.graph.edges[u, v].update(blocked=True, weight=1e6, penalty=1e6 - 10)
     task = _task(pickup=(10.0, 5.0), dropoff=(10.0, 8.0), dwell=2.0)
     expected = (
-        (10 / 1.5 + 1.5)  # a -> b
-        + (math.pi / 2) / 1.5  # the corner at b
-        + (5 / 1.5 + 1.5)  # b -> c, stop at the pickup; no turn: c -> d goes straight on
+        _stretch(10, 0, CORNER)  # a -> b, down to the corner speed at b
+        + _stretch(5, CORNER, 0)  # b -> c, stop at the pickup; c -> d goes straight on
         + (3 / 1.5 + 1.5)  # c -> d
         + 2 * 2.0
     )
+    assert expected < (10 / 1.5 + 1.5) + (math.pi / 2) / 1.5 + (5 / 1.5 + 1.5) + 3.5 + 4
     assert ideal_trip_s(graph, (0.0, 0.0), "a", task, LIMITS) == pytest.approx(expected)
 
 
@@ -82,7 +93,8 @@ def test_a_unit_off_its_node_drives_to_it_first_and_one_on_it_does_not():
     task = _task(pickup=(10.0, 0.0), dropoff=(10.0, 0.0), dwell=0.0)
     on_node = 10 / 1.5 + 1.5
     assert ideal_trip_s(graph, (0.07, -0.07), "a", task, LIMITS) == pytest.approx(on_node)
-    off = 2 * math.sqrt(0.5) + (math.pi / 2) / 1.5 + on_node  # 0.5 m up to a, quarter turn
+    peak = math.sqrt(0.5 + CORNER**2 / 2)  # 0.5 m up to a: never reaches 1.5 m/s
+    off = peak + (peak - CORNER) + _stretch(10, CORNER, 0)
     assert ideal_trip_s(graph, (0.0, -0.5), "a", task, LIMITS) == pytest.approx(off)
 
 
