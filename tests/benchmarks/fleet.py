@@ -1,0 +1,250 @@
+"""Fleet throughput benchmark: whole scenario runs, edge-by-edge lanes against reserve-ahead.
+
+Run: ``python tests/benchmarks/fleet.py [SCENARIO.yaml ...] [--all] [--policy P]
+[--seed N] [--duration S] [--coordinator NAME] [--json]``
+
+Each scenario (default: ``scenarios/static_shift.yaml``, ``scenarios/moved_pod.yaml``,
+``scenarios/busy_shift.yaml``; ``--all``: every ``scenarios/*.yaml`` but ``tiny.yaml``)
+is run end to end twice in this process with ``scenarios.runner.run`` (its own embedded
+map server each time, the scenario's seed), once per lane coordinator:
+
+- ``edge-by-edge``: ``RunOptions(segment_m=None, reserve_ahead=False)``, the coordinator
+  as it was: lanes run junction to junction (stops included) and a unit is granted one
+  lane at a time, when it arrives at the lane's tail;
+- ``reserve-ahead``: ``RunOptions()`` (the defaults): lanes split every 4 m so units can
+  follow one another, and a unit asks for its next lanes a braking distance (plus
+  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.runner._coordinator``).
+
+Only the coordinator differs: both runs use the same drive controller (regulated pure
+pursuit), the same navigator (A* on the shared costmap, line-of-sight shortcuts,
+recovery), the same map server settings and the same trips. ``--policy``, ``--seed`` and
+``--duration`` [s] override the scenario's map policy, run seed and length.
+
+Printed, one row per (scenario, coordinator): ``trips`` (``tasks_completed``),
+``trips/u.h`` (``trips_per_unit_hour``), ``ratio`` (``trip_time_ratio``: actual / ideal
+trip time), ``eff`` (``fleet_efficiency``), ``v_mov`` (``mean_speed_moving`` [m/s]),
+``moving`` (``moving_share``), ``dl`` (deadlocks broken), ``coll`` (collisions), sim
+seconds, wall seconds of the run loop (``metrics["wall_seconds"]``: no server start-up),
+``rtf`` (real-time factor, sim / wall), and the longest time any unit held a task without
+moving (from the run record's unit samples, every 0.5 s: the longest stretch of
+consecutive samples of one unit with the same task and its position within 0.05 m of
+where the stretch began), with the unit and the sim time it began; ``running``: the same
+with the samples of a unit broken down (the scenario's breakdown events) left out, so a
+scheduled breakdown does not hide a unit stuck in traffic. See docs/throughput.md for
+the metrics. ``--json`` prints every row as one JSON line after the table. Measures
+only; tests assert behaviour. Wall times are of this machine: the map server shares its
+cores with the simulator.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+# Run as a script, this file's directory comes first on sys.path and this file would
+# shadow the ``fleet`` package: drop the directory before importing the project.
+HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+
+from scenarios.record import RunRecord, UnitSample  # noqa: E402
+from scenarios.runner import RunOptions, run  # noqa: E402
+from scenarios.spec import Scenario, load_scenario  # noqa: E402
+
+ROOT = HERE.parents[1]
+DEFAULT = ("static_shift.yaml", "moved_pod.yaml", "busy_shift.yaml")
+COORDINATORS = {
+    "edge-by-edge": RunOptions(segment_m=None, reserve_ahead=False),
+    "reserve-ahead": RunOptions(),
+}
+STILL_M = 0.05  # [m] a unit that stays this close to where it stood has not moved
+
+
+@dataclass(frozen=True)
+class Stall:
+    """The longest time a unit held one task without moving: ``seconds`` from ``start``
+    [s sim time], unit ``unit_id`` on task ``task``."""
+
+    seconds: float
+    unit_id: str
+    start: float
+    task: str
+
+
+def longest_stall(
+    samples: list[UnitSample],
+    still_m: float = STILL_M,
+    broken: dict[str, list[tuple[float, float]]] | None = None,
+) -> Stall | None:
+    """The longest stretch of consecutive samples of one unit with the same (non-None)
+    task and the position within ``still_m`` [m] of the stretch's first sample; None if
+    no unit ever held a task. ``broken``: unit id -> [(from, until)] [s] breakdowns; a
+    sample of a unit broken down ends its stretch. Ties: the earliest, then the lowest
+    unit id."""
+    by_unit: dict[str, list[UnitSample]] = {}
+    for s in samples:
+        by_unit.setdefault(s.unit_id, []).append(s)
+    best: Stall | None = None
+    for uid in sorted(by_unit):
+        spans = (broken or {}).get(uid, [])
+        anchor: UnitSample | None = None
+        for s in sorted(by_unit[uid], key=lambda s: s.stamp):
+            if s.task is None or any(a <= s.stamp < b for a, b in spans):
+                anchor = None
+                continue
+            if (
+                anchor is None
+                or s.task != anchor.task
+                or math.hypot(s.x - anchor.x, s.y - anchor.y) > still_m
+            ):
+                anchor = s
+            seconds = s.stamp - anchor.stamp
+            if best is None or seconds > best.seconds + 1e-9:
+                best = Stall(seconds, uid, anchor.stamp, anchor.task)
+    return best
+
+
+def stall_fields(prefix: str, stall: Stall | None) -> dict:
+    return {
+        f"{prefix}_s": round(stall.seconds, 3) if stall else None,
+        f"{prefix}_unit": stall.unit_id if stall else None,
+        f"{prefix}_start": round(stall.start, 3) if stall else None,
+        f"{prefix}_task": stall.task if stall else None,
+    }
+
+
+def row(scenario: Scenario, coordinator: str, record: RunRecord, total_wall: float) -> dict:
+    """One table row (and JSON line) from a run's record."""
+    m = record.metrics
+    broken: dict[str, list[tuple[float, float]]] = {}
+    for b in scenario.breakdowns():
+        broken.setdefault(b.unit_id, []).append((b.at, b.until))
+    sim_s, wall_s = float(m["sim_seconds"]), float(m["wall_seconds"])
+    return {
+        "scenario": scenario.name,
+        "coordinator": coordinator,
+        "policy": m["policy"],
+        "seed": m["seed"],
+        "units": m["units"],
+        "trips": m["tasks_completed"],
+        "trips_per_unit_hour": m["trips_per_unit_hour"],
+        "trip_time_ratio": m["trip_time_ratio"],
+        "fleet_efficiency": m["fleet_efficiency"],
+        "mean_speed_moving": m["mean_speed_moving"],
+        "moving_share": m["moving_share"],
+        "deadlocks": m["deadlocks"],
+        "collisions": m["collisions"],
+        "sim_seconds": sim_s,
+        "wall_seconds": wall_s,
+        "wall_seconds_total": round(total_wall, 3),
+        "real_time_factor": round(sim_s / wall_s, 3) if wall_s > 0 else None,
+        **stall_fields("longest_stall", longest_stall(record.units)),
+        **stall_fields("longest_stall_running", longest_stall(record.units, broken=broken)),
+    }
+
+
+COLUMNS = (  # (title, key, format)
+    ("scenario", "scenario", "<14"),
+    ("coordinator", "coordinator", "<13"),
+    ("trips", "trips", ">5"),
+    ("trips/u.h", "trips_per_unit_hour", ">9.2f"),
+    ("ratio", "trip_time_ratio", ">6.2f"),
+    ("eff", "fleet_efficiency", ">6.3f"),
+    ("v_mov", "mean_speed_moving", ">6.3f"),
+    ("moving", "moving_share", ">6.3f"),
+    ("dl", "deadlocks", ">3"),
+    ("coll", "collisions", ">4"),
+    ("sim s", "sim_seconds", ">6.0f"),
+    ("wall s", "wall_seconds", ">7.1f"),
+    ("rtf", "real_time_factor", ">5.2f"),
+    ("stall s", "longest_stall_s", ">7.1f"),
+    ("unit @ t", "longest_stall", "<13"),
+    ("running", "longest_stall_running_s", ">7.1f"),
+    ("unit @ t", "longest_stall_running", "<13"),
+)
+
+
+def cell(r: dict, key: str, fmt: str) -> str:
+    """``r[key]`` formatted; a stall's "unit @ start"; "-" for None."""
+    value = r.get(key)
+    if key + "_unit" in r:
+        unit, start = r[key + "_unit"], r[key + "_start"]
+        value = None if unit is None else f"{unit} @ {start:.1f}"
+    if value is None:
+        value, fmt = "-", fmt[0] + fmt[1:].split(".")[0]
+    return f"{value:{fmt}}"
+
+
+def header() -> str:
+    return "  ".join(
+        f"{title:{fmt[0]}{fmt[1:].split('.')[0]}}" for title, _, fmt in COLUMNS
+    ).rstrip()
+
+
+def line(r: dict) -> str:
+    return "  ".join(cell(r, key, fmt) for _, key, fmt in COLUMNS).rstrip()
+
+
+def scenario_paths(given: list[str], everything: bool) -> list[Path]:
+    """The scenario files to run, in order, without repeats."""
+    paths = [Path(p) for p in given]
+    if everything:
+        paths += [p for p in sorted((ROOT / "scenarios").glob("*.yaml")) if p.name != "tiny.yaml"]
+    if not paths:
+        paths = [ROOT / "scenarios" / name for name in DEFAULT]
+    seen: set[Path] = set()
+    out = []
+    for p in paths:
+        if p.resolve() not in seen:
+            seen.add(p.resolve())
+            out.append(p)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scenarios", nargs="*", help="scenario YAML files (default: three)")
+    parser.add_argument(
+        "--all", action="store_true", help="every scenarios/*.yaml except tiny.yaml"
+    )
+    parser.add_argument("--policy", help="map policy for every run (decay, binary, sticky)")
+    parser.add_argument("--seed", type=int, help="run seed for every run")
+    parser.add_argument("--duration", type=float, help="cut every run to this many sim [s]")
+    parser.add_argument(
+        "--coordinator",
+        choices=sorted(COORDINATORS),
+        action="append",
+        help="run only this coordinator (repeatable; default: both)",
+    )
+    parser.add_argument("--json", action="store_true", help="print every row as a JSON line")
+    args = parser.parse_args()
+
+    coordinators = [c for c in COORDINATORS if c in (args.coordinator or COORDINATORS)]
+    print(header(), flush=True)
+    rows = []
+    for path in scenario_paths(args.scenarios, args.all):
+        scenario = load_scenario(path)
+        if args.policy is not None:
+            scenario = scenario.with_policy(args.policy)
+        if args.seed is not None:
+            scenario = scenario.with_seed(args.seed)
+        if args.duration is not None:
+            scenario = dataclasses.replace(scenario, duration=args.duration)
+        for name in coordinators:
+            t0 = time.perf_counter()
+            record = run(scenario, options=COORDINATORS[name])
+            rows.append(row(scenario, name, record, time.perf_counter() - t0))
+            print(line(rows[-1]), flush=True)
+    if args.json:
+        for r in rows:
+            print(json.dumps(r))
+
+
+if __name__ == "__main__":
+    main()
