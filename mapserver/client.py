@@ -826,7 +826,10 @@ def _rows(name: str, values: Iterable[Iterable[float]], n: int) -> list[list[flo
 
 def _row(name: str, row: Iterable[float], n: int) -> list[float]:
     """``row`` as a list of ``n`` floats; ValueError names it."""
-    items = list(row) if isinstance(row, Iterable) else [row]
+    if type(row) is list or type(row) is tuple:  # the common case, without ABC checks
+        items = row
+    else:
+        items = list(row) if isinstance(row, Iterable) else [row]
     if len(items) != n or not all(_is_number(v) for v in items):
         raise ValueError(f"{name} must be {n} numbers, got {_short(row)}")
     return [float(v) for v in items]
@@ -834,4 +837,7 @@ def _row(name: str, row: Iterable[float], n: int) -> list[float]:
 
 def _is_number(value: Any) -> bool:
     """A real number (Python or numpy), not a bool."""
+    kind = type(value)
+    if kind is float or kind is int:  # the common case, without ABC checks
+        return True
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
