@@ -121,11 +121,24 @@ class Lidar:
         # Body-frame ray ends as Python lists, built once: PyBullet converts lists fastest.
         self._from = np.stack([self.start * c, self.start * s, z], axis=1).tolist()
         self._to = np.stack([config.range_max * c, config.range_max * s, z], axis=1).tolist()
+        self._scene: object = None  # the key of the last cast and its ranges [m]
+        self._ranges = np.empty(0)
 
-    def true_ranges(self, world: World, unit_id: str) -> np.ndarray:
-        """[m] flawless ranges from unit ``unit_id``'s sensor; +inf where nothing is hit."""
+    def true_ranges(self, world: World, unit_id: str, scene: object = None) -> np.ndarray:
+        """[m] flawless ranges from unit ``unit_id``'s sensor; +inf where nothing is hit.
+
+        scene: a key of what the sensor can see (e.g. the world's revision, the unit's
+        pose and the poses of the units in range), or None. When it equals the key of the
+        last cast, nothing it can see has moved, so the last ranges are the answer (the
+        same rays in the same scene hit the same surfaces) and no rays are cast.
+        """
+        if scene is not None and scene == self._scene:
+            return self._ranges
         fractions = world.cast_rays(self._from, self._to, frame_unit=unit_id)
-        return fractions * self._span + self.start  # inf stays inf
+        ranges = fractions * self._span + self.start  # inf stays inf
+        ranges.flags.writeable = False
+        self._scene, self._ranges = scene, ranges
+        return ranges
 
     def corrupt(self, ranges: np.ndarray) -> np.ndarray:
         """``ranges`` [m] with the configured noise, dropouts and spurious returns (new array)."""
@@ -147,6 +160,7 @@ class Lidar:
                 out[spurious] = cfg.range_min + where[spurious] * span
         return out
 
-    def measure(self, world: World, unit_id: str) -> np.ndarray:
-        """[m] one scan's ranges from unit ``unit_id``: cast, then corrupted."""
-        return self.corrupt(self.true_ranges(world, unit_id))
+    def measure(self, world: World, unit_id: str, scene: object = None) -> np.ndarray:
+        """[m] one scan's ranges from unit ``unit_id``: cast (or, for an unchanged
+        ``scene``, the last cast: ``true_ranges``), then corrupted afresh."""
+        return self.corrupt(self.true_ranges(world, unit_id, scene))

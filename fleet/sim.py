@@ -14,13 +14,25 @@ the sim clock (``time`` [s], from 0), never the wall clock. One step of ``dt``:
    is put back to where along that step it first touched (bisection on the exact
    footprints, ``World.gap``, with the other units moving along their own steps),
    halted (bumper stop, path dropped) and reported in a ``CollisionEvent`` per object
-   touched;
+   touched, with its ``cause`` (below); a unit put back may now be touched by another
+   (one following it closely), so the check repeats until no contact begins;
 5. every LiDAR whose next scan is due (slots ``k / rate_hz`` s for k = 0, 1, ...; slot 0
    is taken at the first step; at most one scan per step, so keep ``dt <= 1 / rate_hz``)
    scans from the unit's true pose; the scan carries the localiser's pose estimate and
    honest ``pose_std``, stamped ``t``;
 6. the poster, if any, sends this step's scans as one batch (``fleet.poster``); its error
    (the server down, a refused scan) propagates from ``step``, after the step's moves.
+
+Collision cause, per object touched. ``"fleet"``: at the step's start the unit was clear
+of the other thing, so the step's driving made the contact: the unit drove into an
+obstacle, or into another unit, or a unit drove into it (both units report that contact,
+both ``"fleet"``, whichever of them moved). ``"scenario"``: at the step's start the unit
+already overlapped the other thing (an obstacle as it is after this step's world
+changes; a unit at its own step start), so something other than the fleet's driving put
+them together: an object dropped or moved onto the unit, a person walking into it, a
+body placed there between steps. This is the bisection's own test at fraction 0; a
+unit with a ``"scenario"`` contact is halted but not put back (there is no earlier clear
+moment in the step to go back to).
 
 Determinism: all randomness comes from ``numpy.random.SeedSequence(seed)``, one child per
 unit (in ``units`` order) split into the LiDAR's and the localiser's generators; the same
@@ -52,6 +64,13 @@ short of a scheduled time and still take it (sums of float steps drift by far le
 CONTACT_BISECTIONS = 30
 """Halvings of a step that put a colliding unit back where it first touched (2^-30 of
 a step: well below a micrometre)."""
+CONTACT_ROUNDS = 8
+"""Rounds of contact checks per step (a unit put back can be run into by the unit behind
+it; ``FleetSim._collisions``); the last one reports without putting back."""
+
+COLLISION_CAUSES = ("fleet", "scenario")
+"""``CollisionEvent.cause``: the fleet's driving made the contact, or the scenario moved
+something onto the unit (module docstring)."""
 
 WorldChange = Callable[[World], None]
 """A scheduled change: called with the world at the step that reaches its time."""
@@ -71,7 +90,8 @@ class UnitSpec:
 @dataclass(frozen=True)
 class CollisionEvent:
     """At sim ``time`` [s] unit ``unit_id``, at true (x, y) [m], began touching ``other_id``
-    (an obstacle of kind ``other_kind``, or a unit: ``other_kind == "unit"``)."""
+    (an obstacle of kind ``other_kind``, or a unit: ``other_kind == "unit"``); ``cause``
+    ``"fleet"`` or ``"scenario"`` (``COLLISION_CAUSES``, module docstring)."""
 
     time: float
     unit_id: str
@@ -79,6 +99,7 @@ class CollisionEvent:
     other_kind: str
     x: float
     y: float
+    cause: str = "fleet"
 
 
 @dataclass(frozen=True)
@@ -178,7 +199,9 @@ class FleetSim:
             starts[unit_id] = unit.drive.pose
             self.world.set_unit_pose(unit_id, unit.drive.step(dt))
         collisions = self._collisions(now, starts)
-        scans = [self._scan(unit_id, unit, now) for unit_id, unit in self._due(now)]
+        due = self._due(now)
+        scenes = self._scenes(due)
+        scans = [self._scan(unit_id, unit, now, scenes[unit_id]) for unit_id, unit in due]
         acks = self.poster.post(scans) if self.poster is not None and scans else []
         return StepResult(now, tuple(scans), tuple(collisions), tuple(acks))
 
@@ -202,26 +225,53 @@ class FleetSim:
 
     def _collisions(self, now: float, starts: Mapping[str, Pose2D]) -> list[CollisionEvent]:
         """Check every unit's contacts after the move from ``starts`` (all checked before any
-        unit is put back); halt and put back each unit that began one (module docstring)."""
+        unit is put back); halt and put back each unit that began one (module docstring).
+
+        Putting a unit back can make a contact of its own (a unit following it closely
+        now ends on it): the check runs again, in rounds, with each unit's step now ending
+        where it was put; every contact that began this step is reported once. After
+        ``CONTACT_ROUNDS`` rounds what is left is reported without putting anyone back."""
         ends = {unit_id: self.world.unit_pose(unit_id) for unit_id in self._units}
-        contacts = {unit_id: self.world.contacts(unit_id) for unit_id in self._units}
-        events = []
-        for unit_id, unit in self._units.items():
-            new = [c for c in contacts[unit_id] if c.other_id not in unit.touching]
-            if new:
-                fraction = self._first_touch(unit_id, starts, ends, [c.other_id for c in new])
-                pose = _between(starts[unit_id], ends[unit_id], fraction)
-                unit.drive.halt()
-                unit.drive.pose = pose
-                self.world.set_unit_pose(unit_id, pose)
-                events += [
-                    CollisionEvent(now, unit_id, c.other_id, c.other_kind, pose.x, pose.y)
-                    for c in new
-                ]
-        if events:  # units were put back: their contacts and their neighbours' changed
+        reported: dict[str, set[str]] = {unit_id: set() for unit_id in self._units}
+        events: list[CollisionEvent] = []
+        for round_ in range(CONTACT_ROUNDS):
             contacts = {unit_id: self.world.contacts(unit_id) for unit_id in self._units}
+            begun = False
+            for unit_id, unit in self._units.items():
+                new = [
+                    c
+                    for c in contacts[unit_id]
+                    if c.other_id not in unit.touching and c.other_id not in reported[unit_id]
+                ]
+                if not new:
+                    continue
+                begun = True
+                unit.drive.halt()
+                if round_ < CONTACT_ROUNDS - 1:
+                    others = [c.other_id for c in new]
+                    pose = _between(
+                        starts[unit_id],
+                        ends[unit_id],
+                        self._first_touch(unit_id, starts, ends, others),
+                    )
+                    unit.drive.pose = pose
+                    self.world.set_unit_pose(unit_id, pose)
+                else:
+                    pose = self.world.unit_pose(unit_id)
+                for c in new:
+                    moved_onto = self._overlap(unit_id, c.other_id, starts, ends, 0.0)
+                    cause = "scenario" if moved_onto else "fleet"
+                    events.append(
+                        CollisionEvent(
+                            now, unit_id, c.other_id, c.other_kind, pose.x, pose.y, cause
+                        )
+                    )
+                    reported[unit_id].add(c.other_id)
+            if not begun:
+                break
+            ends = {unit_id: self.world.unit_pose(unit_id) for unit_id in self._units}
         for unit_id, unit in self._units.items():
-            unit.touching = frozenset(c.other_id for c in contacts[unit_id])
+            unit.touching = frozenset(c.other_id for c in self.world.contacts(unit_id))
         return events
 
     def _first_touch(
@@ -236,15 +286,7 @@ class FleetSim:
         overlapped one already at the start (something moved onto it)."""
 
         def clear(f: float) -> bool:
-            here = _between(starts[unit_id], ends[unit_id], f)
-            for other in others:
-                there = None
-                if other in ends:
-                    moved = _between(starts[other], ends[other], f)
-                    there = (moved.x, moved.y)
-                if self.world.gap(unit_id, other, here.x, here.y, there) < 0:
-                    return False
-            return True
+            return not any(self._overlap(unit_id, o, starts, ends, f) for o in others)
 
         if not clear(0.0):
             return 1.0
@@ -253,6 +295,23 @@ class FleetSim:
             mid = (lo + hi) / 2
             lo, hi = (mid, hi) if clear(mid) else (lo, mid)
         return lo
+
+    def _overlap(
+        self,
+        unit_id: str,
+        other: str,
+        starts: Mapping[str, Pose2D],
+        ends: Mapping[str, Pose2D],
+        f: float,
+    ) -> bool:
+        """Whether unit ``unit_id``, ``f`` of the way along its step, overlaps ``other``: an
+        obstacle where it is now, or a unit ``f`` of the way along its own step."""
+        here = _between(starts[unit_id], ends[unit_id], f)
+        there = None
+        if other in ends:
+            moved = _between(starts[other], ends[other], f)
+            there = (moved.x, moved.y)
+        return self.world.gap(unit_id, other, here.x, here.y, there) < 0
 
     def _due(self, now: float) -> list[tuple[str, SimUnit]]:
         """The units whose LiDAR scans at ``now``; their next slots are moved past it."""
@@ -264,9 +323,29 @@ class FleetSim:
                 unit.next_scan = (math.floor(now / period + SCHEDULE_TOLERANCE) + 1) * period
         return due
 
-    def _scan(self, unit_id: str, unit: SimUnit, now: float) -> Scan:
+    def _scenes(self, due: list[tuple[str, SimUnit]]) -> dict[str, tuple]:
+        """What each scanning unit's LiDAR can see, as a key (``Lidar.true_ranges``): the
+        world's revision, the unit's true pose and the true poses of the units within
+        its range. A unit standing still among still things casts no rays."""
+        order = {uid: k for k, uid in enumerate(self._units)}
+        true = [self.world.unit_pose(uid) for uid in order]
+        poses = np.array([(q.x, q.y, q.yaw) for q in true]).reshape(-1, 3)
+        widest = max(u.spec.drive.radius for u in self._units.values())
+        scenes = {}
+        for unit_id, unit in due:
+            k = order[unit_id]
+            x, y, yaw = poses[k]
+            near = np.hypot(poses[:, 0] - x, poses[:, 1] - y) <= unit.spec.lidar.range_max + widest
+            near[k] = False
+            others = np.flatnonzero(near)
+            scenes[unit_id] = (
+                self.world.revision, x, y, yaw, others.tobytes(), poses[others].tobytes(),
+            )  # fmt: skip
+        return scenes
+
+    def _scan(self, unit_id: str, unit: SimUnit, now: float, scene: tuple) -> Scan:
         lidar = unit.lidar
-        ranges = lidar.measure(self.world, unit_id)
+        ranges = lidar.measure(self.world, unit_id, scene)
         pose, pose_std = unit.localizer.estimate(self.world.unit_pose(unit_id))
         return Scan(
             unit_id=unit_id,

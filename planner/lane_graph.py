@@ -21,6 +21,9 @@ network structure, dynamics, and function using NetworkX*, SciPy 2008):
   ``unknown``     fraction 0..1 of the lane's cells that are unknown (None: not read)
   ``block_span``  (near, far) [m] from the edge's tail: where the blocked cells start
                   and end along this edge's direction; None when not blocked
+  ``block_cells`` the centres (x, y) [m] of the first blocked cell seen from the edge's
+                  tail, then from its head (as the map reported them; one when both
+                  are the same cell or one reading was clear); None when not blocked
   ``corridor``    index into ``corridors`` of the corridor the lane belongs to
   ``heading``     +1 along the corridor's node order, -1 against it
   ============== ==============================================================
@@ -161,6 +164,7 @@ class LaneGraph:
                         max_cost=None,
                         unknown=None,
                         block_span=None,
+                        block_cells=None,
                     )
         self.graph = graph
         self.lanes: tuple[Lane, ...] = tuple(sorted(keys))
@@ -344,9 +348,10 @@ class LaneGraph:
                     + self.cost_factor * reading.cost / float(MAX_GRADED)
                     + self.unknown_factor * reading.unknown
                 )
-                span = reading.span
+                span, cells = reading.span, reading.cells
                 if span is not None and u == b:
                     span = (d["length"] - span[1], d["length"] - span[0])
+                    cells = cells[::-1]
                 if (d["blocked"], d["weight"]) != (reading.blocked, weight):
                     changed = True
                 d.update(
@@ -356,6 +361,7 @@ class LaneGraph:
                     max_cost=reading.max_cost,
                     unknown=reading.unknown,
                     block_span=span,
+                    block_cells=_distinct(cells) if reading.blocked else None,
                 )
             if reading.blocked and not was:
                 blocked.append((a, b))
@@ -379,6 +385,8 @@ class _Reading:
     cost: float
     unknown: float
     span: tuple[float, float] | None  # [m] from the lane's first node (a), a->b
+    cells: tuple[tuple[float, float] | None, tuple[float, float] | None]  # first blocked
+    # cell seen from a, from b (None: that reading found none)
 
 
 def _label_corridors(
@@ -435,7 +443,23 @@ def _lane_reading(
         cost=float(min(max_cost if max_cost is not None else 0, int(MAX_GRADED))),
         unknown=float(max(fwd.unknown_fraction, back.unknown_fraction)),
         span=span,
+        cells=(_point(fwd.first_blocked), _point(back.first_blocked)),
     )
+
+
+def _point(p: Sequence[float] | None) -> tuple[float, float] | None:
+    return None if p is None else (float(p[0]), float(p[1]))
+
+
+def _distinct(
+    cells: Sequence[tuple[float, float] | None],
+) -> tuple[tuple[float, float], ...]:
+    """The known cells, in order, each once."""
+    out: list[tuple[float, float]] = []
+    for c in cells:
+        if c is not None and c not in out:
+            out.append(c)
+    return tuple(out)
 
 
 def one_way_loops(n_x: int, n_y: int) -> tuple[tuple[str, str], ...]:

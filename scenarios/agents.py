@@ -22,8 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.coordinator import LaneCoordinator
+from planner.freeze import LaneBlock
 from planner.lane_graph import LaneGraph
 from planner.navigator import Command, UnitNavigator
+from scenarios.lane_evidence import lane_block
 from scenarios.tasks import Task
 
 Point = tuple[float, float]
@@ -32,7 +34,9 @@ Point = tuple[float, float]
 @dataclass(frozen=True)
 class AgentState:
     """What the agent did this tick: the drive command, whether it has a task, and the
-    reason it stands still when nothing admissible was found (None otherwise)."""
+    reason it stands still when nothing admissible was found (None otherwise), the
+    points that blocked it, and ``lane_block`` when the lane coordinator holds it (a lane
+    freeze: ``blocking`` are then its lanes' first blocked cells)."""
 
     command: Command
     has_task: bool
@@ -40,6 +44,7 @@ class AgentState:
     blocking: tuple[Point, ...]
     goal: Point | None
     task_done: Task | None = None
+    lane_block: LaneBlock | None = None
 
 
 class TaskAgent:
@@ -109,7 +114,9 @@ class TaskAgent:
         if status.state in ("no_route", "stranded"):
             reason = f"no lane to {_fmt(self.goal)}" if status.state == "no_route" else (
                 "stranded on a blocked lane")  # fmt: skip
-            return AgentState(Command("stop"), True, reason, (), self.goal)
+            block = lane_block(self.coordinator, self.graph, self.unit_id)
+            points = block.points if block is not None else ()
+            return AgentState(Command("stop"), True, reason, points, self.goal, lane_block=block)
         if status.target is None:  # waiting for traffic
             return AgentState(Command("stop"), True, None, (), self.goal)
         return self._drive(now, position, costs, status.target, has_task=True)

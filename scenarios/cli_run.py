@@ -21,7 +21,11 @@ TABLE_COLUMNS = (
     ("collisions", "collisions"),
     ("time_to_clear_s", "time to clear s"),
     ("tasks_completed", "tasks"),
+    ("trips_per_unit_hour", "trips/unit-h"),
+    ("trip_time_ratio", "actual/ideal"),
+    ("fleet_efficiency", "efficiency"),
 )
+TWO_DECIMALS = ("trip_time_ratio", "fleet_efficiency")  # ratios near 1: one decimal is too coarse
 
 
 def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
@@ -30,7 +34,8 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
         "run",
         help="run one scenario end to end",
         description="Run a scenario: simulated units, the shared map, planners; writes "
-        "metrics.json, freezes.json, trips.json, report.png and replay.mcap to --out.",
+        "metrics.json, freezes.json, trips.json, collisions.json, report.png and replay.mcap "
+        "to --out.",
     )
     run.add_argument("scenario", type=Path, help="scenario YAML (see docs/scenarios.md)")
     run.add_argument("--policy", choices=[p.value for p in Policy], help="override the map policy")
@@ -101,16 +106,18 @@ def format_table(rows: list[dict]) -> str:
     """A plain-text table of the comparison columns."""
     cells = [[title for _, title in TABLE_COLUMNS]]
     for row in rows:
-        cells.append([_cell(row.get(key)) for key, _ in TABLE_COLUMNS])
+        cells.append([_cell(row.get(key), key in TWO_DECIMALS) for key, _ in TABLE_COLUMNS])
     widths = [max(len(r[i]) for r in cells) for i in range(len(TABLE_COLUMNS))]
     lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in cells]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)
 
 
-def _cell(value: object) -> str:
+def _cell(value: object, fine: bool = False) -> str:
     if isinstance(value, float):
-        return f"{value:.1f}"
+        return f"{value:.2f}" if fine else f"{value:.1f}"
+    if value is None:
+        return "-"
     if isinstance(value, list):
         return ",".join("never" if v is None else f"{v:.1f}" for v in value) or "-"
     return str(value)

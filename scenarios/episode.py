@@ -38,12 +38,13 @@ from fleet.sim import FleetSim, StepResult
 from fleet.world import World
 from mapserver.client import Grid, MapClient
 from planner.coordinator import LaneCoordinator
-from planner.freeze import classify
+from planner.freeze import TruthLanes, classify
 from planner.grid_search import GridPlanner
 from planner.lane_graph import LaneGraph
 from planner.navigator import UnitNavigator
 from scenarios.agents import AgentState, TaskAgent
 from scenarios.clearing import ClearingTracker
+from scenarios.collisions_json import collision_counts
 from scenarios.dispatch import Dispatcher
 from scenarios.evidence import freeze_records
 from scenarios.fleet_filter import FleetMemberFilter
@@ -306,10 +307,11 @@ class Episode:
         def plan(costs: np.ndarray, start, goal) -> bool:
             return planner.plan(costs, start, goal).found
 
+        lanes = TruthLanes(self.graph, self.geometry)  # lane freezes: the router on truth
         watch = self.standard.freezes
         watch.detector.finish(now)
         for freeze in watch.detector.freezes:  # every freeze, not only those still open
-            classify(freeze, self.truth.costmap, plan)
+            classify(freeze, self.truth.costmap, plan, lane_plan=lanes)
         self.record.freezes = freeze_records(
             watch.detector.freezes, self.agents, self.coordinator, self.truth,
             watch.evidence, self.standard.scans.index,
@@ -341,7 +343,7 @@ class Episode:
             "phantom_freeze_seconds": round(sum(f.duration for f in phantom), 3),
             "true_block_freezes": len(freezes) - len(phantom),
             "stale_free_plans": sum(1 for p in self.record.plans if p.stale_free),
-            "collisions": len(self.record.collisions),
+            **collision_counts(self.record),  # collisions (the fleet's), scenario_collisions
             "time_to_clear_s": [None if t is None else round(t, 3) for t in self.clearing.times()],
             "replans": replans,
             "deadlocks": self.coordinator.deadlocks,

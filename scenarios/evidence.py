@@ -1,6 +1,7 @@
 """A freeze with its evidence, for ``freezes.json`` and the replay: the blocking cells
-(ground truth, p_occ, last_observed, the scans that last observed them) and the recovery
-actions the unit and the coordinator took meanwhile."""
+(ground truth, p_occ, last_observed, the scans that last observed them), the blocked
+lanes of a lane freeze (``scenarios.lane_evidence`` names them and their cells) and the
+recovery actions the unit and the coordinator took meanwhile."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ from planner.coordinator import LaneCoordinator
 from planner.freeze import Freeze
 from scenarios.record import BlockingCell, FreezeRecord, RecoveryStep
 
-# (unit_id, point) -> (stamp [s] first seen, mapserver.client.CellInfo)
-Evidence = Mapping[tuple[str, tuple[float, float]], tuple[float, object]]
+# (unit_id, point) -> (stamp [s] read, mapserver.client.CellInfo), or a list of such
+# readings (one per freeze that named the point; the one read during a freeze is its)
+Reading = tuple[float, object]
+Evidence = Mapping[tuple[str, tuple[float, float]], Reading | Sequence[Reading]]
 # stamp [s] -> [(unit_id, x, y, range_max)] of the scans taken then
 ScanIndex = Mapping[float, Sequence[tuple[str, float, float, float]]]
 
@@ -32,7 +35,7 @@ def freeze_records(
     records = []
     for freeze in sorted(freezes, key=lambda f: (f.start, f.unit_id)):
         cells = tuple(
-            _blocking_cell(freeze.unit_id, point, truth, evidence, scans)
+            _blocking_cell(point, _reading(freeze, point, evidence), truth, scans)
             for point in freeze.blocking_points
         )
         x, y = freeze.position or (math.nan, math.nan)
@@ -47,15 +50,29 @@ def freeze_records(
                 y=y,
                 blocking=cells,
                 recovery=_recovery(freeze, agents[freeze.unit_id], coordinator),
+                lanes=tuple(freeze.lanes),
             )
         )
     return records
 
 
-def _blocking_cell(
-    unit_id: str, point, truth: GroundTruth, evidence: Evidence, scans: ScanIndex
-) -> BlockingCell:
-    seen_at, info = evidence[(unit_id, point)]
+def _reading(freeze: Freeze, point, evidence: Evidence) -> Reading:
+    """The map's reading of ``point`` for this freeze: the first one taken during it, else
+    the last one before it (a single reading is used as it is)."""
+    value = evidence[(freeze.unit_id, point)]
+    if isinstance(value, tuple):
+        return value
+    during = [r for r in value if freeze.start <= r[0] <= freeze.end]
+    if during:
+        return min(during, key=lambda r: r[0])
+    before = [r for r in value if r[0] < freeze.start]
+    if before:
+        return max(before, key=lambda r: r[0])
+    return min(value, key=lambda r: r[0])
+
+
+def _blocking_cell(point, reading: Reading, truth: GroundTruth, scans: ScanIndex) -> BlockingCell:
+    seen_at, info = reading
     truly = bool(truth.is_occupied(np.array([point]), at=seen_at)[0])
     last = info.last_observed
     marked_by: tuple[tuple[str, float], ...] = ()

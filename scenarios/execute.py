@@ -1,5 +1,5 @@
 """Load a scenario, run it, write its outputs: ``metrics.json``, ``freezes.json``,
-``trips.json``, ``report.png`` and ``replay.mcap`` in one folder."""
+``trips.json``, ``collisions.json``, ``report.png`` and ``replay.mcap`` in one folder."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from mapserver.atomic import atomic_output
+from scenarios.collisions_json import write_collisions
 from scenarios.freezes_json import write_freezes
 from scenarios.replay_mcap import REPLAY_FILENAME, write_replay
 from scenarios.report import write_report
@@ -22,6 +23,7 @@ __all__ = ["ScenarioError", "execute"]
 METRICS_FILENAME = "metrics.json"
 FREEZES_FILENAME = "freezes.json"
 TRIPS_FILENAME = "trips.json"
+COLLISIONS_FILENAME = "collisions.json"
 REPORT_FILENAME = "report.png"
 TOKEN_ENV = "FLEETMAP_TOKEN"  # bearer token for ``--server`` when it needs one
 
@@ -54,6 +56,7 @@ def execute(
         f.write((json.dumps(record.metrics, indent=2) + "\n").encode())
     write_freezes(record, out / FREEZES_FILENAME)
     write_trips(record, out / TRIPS_FILENAME)
+    write_collisions(record, out / COLLISIONS_FILENAME)
     write_report(record, out / REPORT_FILENAME)
     write_replay(record, out / REPLAY_FILENAME)
     return record.metrics

@@ -62,13 +62,14 @@ class FleetMemberFilter:
                 beams.append(np.arange(n))  # around the sensor: look at every beam
                 continue
             half = math.asin(reach / d)
-            centre = math.atan2(y - oy, x - ox) - scan.pose.yaw - scan.angle_min
-            first = math.floor((centre - half) / scan.angle_increment)
-            last = math.ceil((centre + half) / scan.angle_increment)
-            index = np.arange(first, last + 1)
-            if scan.angle_increment * n >= 2 * math.pi - 1e-9:  # a full turn wraps
-                index %= n
-            beams.append(index[(index >= 0) & (index < n)])
+            centre = (math.atan2(y - oy, x - ox) - scan.pose.yaw - scan.angle_min) % math.tau
+            for turn in (centre - math.tau, centre, centre + math.tau):  # across angle_min
+                first = math.floor((turn - half) / scan.angle_increment)
+                last = math.ceil((turn + half) / scan.angle_increment)
+                index = np.arange(first, last + 1)
+                if scan.angle_increment * n >= math.tau - 1e-9:  # a full turn wraps
+                    index %= n
+                beams.append(index[(index >= 0) & (index < n)])
         if not beams:
             return scan
         index = np.unique(np.concatenate(beams))

@@ -46,6 +46,7 @@ FLT_MAX: Final = float(np.finfo(np.float32).max)
 
 INFO: Final = LOG_LEVELS.index("INFO")
 WARNING: Final = LOG_LEVELS.index("WARNING")
+ERROR: Final = LOG_LEVELS.index("ERROR")
 
 _GRID_TYPES: Final = {
     np.dtype(np.uint8): NUMERIC_TYPES.index("UINT8"),

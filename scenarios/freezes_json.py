@@ -5,15 +5,22 @@ A JSON list, one object per freeze, ordered by start time then unit, keys in thi
     {"unit": "u3", "start": 41.25, "duration": 6.5, "phantom": true, "true_block": false,
      "reason": "no admissible path",
      "position": {"x": 12.4, "y": 3.1},
+     "lanes": [],
      "blocking_cells": [
         {"x": 12.875, "y": 3.125, "truly_occupied": false, "p_occ": 0.9241,
          "last_observed": 38.75, "marked_by": [{"unit": "u1", "stamp": 38.75}]}],
      "recovery": [{"stamp": 42.25, "action": "turn_in_place", "cause": "path blocked"}]}
 
 Units: times [s] of sim time, positions [m] in the map frame. ``phantom``: the planner
-finds a path on the ground-truth costmap during the freeze (CONTRACT 3); ``true_block`` is
-its complement. ``p_occ`` and ``last_observed`` are null for a cell never observed.
+that froze the unit finds a way on the ground-truth costmap during the freeze (CONTRACT
+3; the grid planner for a path freeze, the lane router for a lane freeze:
+``planner.freeze``); ``true_block`` is its complement. ``p_occ`` and ``last_observed``
+are null for a cell never observed.
 ``marked_by``: the scans (unit, stamp) that last marked the cell occupied.
+``lanes``: for a lane freeze (the lane coordinator had no lane for the unit: "no lane
+to ...", "stranded on a blocked lane"), the blocked lanes that held it, each ``[a, b]``
+(its node ids, sorted; ``scenarios.lane_evidence`` says which), and then
+``blocking_cells`` are those lanes' first blocked cells; ``[]`` for a path freeze.
 Times and positions are rounded to 1 ms and 1 mm, probabilities to 1e-4.
 """
 
@@ -52,6 +59,7 @@ def freeze_to_dict(freeze: FreezeRecord) -> dict[str, Any]:
         "true_block": not freeze.phantom,
         "reason": freeze.reason,
         "position": _position(freeze.x, freeze.y),
+        "lanes": [[a, b] for a, b in freeze.lanes],
         "blocking_cells": [_cell(c) for c in freeze.blocking],
         "recovery": [_step(s) for s in freeze.recovery],
     }

@@ -120,16 +120,21 @@ class FreezeWatch(_Observer):
                     state.blocking,
                     state.goal,
                     _xy(episode.sim.unit(uid).pose),
+                    state.lane_block,
                 )  # fmt: skip
             )
             if state.blocked_reason is not None:
                 self._note(episode, uid, report.now, state.blocking)
 
     def _note(self, episode: Episode, uid: str, now: float, points) -> None:
-        new = [p for p in points if (uid, p) not in self.evidence]
+        """Read each blocking cell's evidence from the map when the unit's current freeze
+        first names it (a later freeze reads it again: ``evidence`` keeps every reading)."""
+        since = self.detector.open_since(uid)
+        since = now if since is None else since
+        new = [p for p in points if not any(s >= since for s, _ in self.evidence.get((uid, p), ()))]
         if new:
             for point, info in zip(new, episode.synced().query_cells(new), strict=True):
-                self.evidence[(uid, point)] = (now, info)
+                self.evidence.setdefault((uid, point), []).append((now, info))
 
 
 class Throughput(_Observer):

@@ -1,5 +1,5 @@
 """What a scenario run records: the input of ``metrics.json``, ``freezes.json``,
-``trips.json``, ``report.png`` and ``replay.mcap``.
+``trips.json``, ``collisions.json``, ``report.png`` and ``replay.mcap``.
 
 Everything is stamped with sim time [s]; positions are in the map frame [m]. The runner
 appends as it goes; writers only read.
@@ -140,7 +140,9 @@ class RecoveryStep:
 @dataclass(frozen=True)
 class FreezeRecord:
     """A freeze (CONTRACT 3): unit, start [s], duration [s], phantom or true block, the
-    blocking cells with their evidence, and the recovery actions taken meanwhile."""
+    blocking cells with their evidence, the recovery actions taken meanwhile, and for a
+    lane freeze the blocked lanes (node-id pairs, sorted) that held the unit
+    (``scenarios.lane_evidence``; empty for a path freeze)."""
 
     unit_id: str
     start: float
@@ -151,6 +153,7 @@ class FreezeRecord:
     y: float
     blocking: tuple[BlockingCell, ...]
     recovery: tuple[RecoveryStep, ...]
+    lanes: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)

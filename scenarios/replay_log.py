@@ -1,17 +1,24 @@
 """The replay's log lines: what happened in a run, in sentences for people, one
-``LogLine`` per scenario event, freeze, recovery action and stale-free plan.
+``LogLine`` per scenario event, freeze, recovery action, stale-free plan and collision.
 
 A freeze is logged at its start with everything that explains it: phantom or true block,
-its cause, each blocking cell with its ground truth, p_occ, last_observed and the scans
-that last marked it, and the recovery actions taken. Positions [m], times [s] of sim time.
+its cause, the blocked lanes of a lane freeze, each blocking cell with its ground truth,
+p_occ, last_observed and the scans that last marked it, and the recovery actions taken.
+A collision is logged when it began, under the unit's name: what it touched, where, and
+its cause (an ERROR when the fleet drove into it, a WARNING when the scenario moved
+something onto the unit; ``fleet.sim``). Positions [m], times [s] of sim time.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from scenarios.foxglove_messages import INFO, WARNING
+from scenarios.foxglove_messages import ERROR, INFO, WARNING
 from scenarios.record import BlockingCell, EventRecord, FreezeRecord, PlanSample, RunRecord
+
+if TYPE_CHECKING:
+    from fleet.sim import CollisionEvent  # imports pybullet
 
 SCENARIO_NAME = "scenario"
 """The ``name`` of the lines about world events (lines about a unit carry its id)."""
@@ -37,6 +44,7 @@ def run_log(record: RunRecord) -> list[LogLine]:
             for s in freeze.recovery
         )
     lines.extend(stale_plan_line(p) for p in record.plans if p.stale_free)
+    lines.extend(collision_line(c) for c in record.collisions)
     return sorted(lines, key=lambda line: line.stamp)
 
 
@@ -53,8 +61,11 @@ def freeze_line(freeze: FreezeRecord) -> LogLine:
         if freeze.phantom
         else "true-block freeze (ground truth is blocked too)"
     )
-    parts = [
-        f"{verdict} for {freeze.duration:.2f} s at {_xy(freeze.x, freeze.y)}: {freeze.reason}",
+    parts = [f"{verdict} for {freeze.duration:.2f} s at {_xy(freeze.x, freeze.y)}: {freeze.reason}"]
+    if freeze.lanes:
+        lanes = ", ".join(f"{a}-{b}" for a, b in freeze.lanes)
+        parts.append(f"blocked lanes ({len(freeze.lanes)}): {lanes}")
+    parts += [
         f"blocking cells ({len(freeze.blocking)}): "
         + ("; ".join(_cell(c) for c in freeze.blocking) or "none recorded"),
         "recovery: "
@@ -72,6 +83,21 @@ def stale_plan_line(plan: PlanSample) -> LogLine:
         f"ground truth, first at {_xy(*first)}"
     )
     return LogLine(plan.stamp, WARNING, plan.unit_id, text)
+
+
+def collision_line(event: CollisionEvent) -> LogLine:
+    """A collision the fleet caused is an ERROR, one the scenario caused a WARNING."""
+    why = (
+        "scenario: it was moved onto the unit"
+        if event.cause == "scenario"
+        else "fleet: the fleet's driving made the contact"
+    )
+    text = (
+        f"COLLISION at {_xy(event.x, event.y)}: touched {event.other_kind} {event.other_id} "
+        f"(cause: {why})"
+    )
+    level = WARNING if event.cause == "scenario" else ERROR
+    return LogLine(event.time, level, event.unit_id, text)
 
 
 def _cell(cell: BlockingCell) -> str:

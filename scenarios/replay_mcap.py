@@ -14,7 +14,7 @@ topic                   schema                 one message per
                                                ``unit/<id>``), objects sample (entities
                                                ``object/<id>``, deletions for the gone)
 ``/log``                foxglove.Log           event, freeze, recovery action, stale-free
-                                               plan (``replay_log``)
+                                               plan, collision (``replay_log``)
 ======================  =====================  ==========================================
 
 A scan channel's metadata carries what ``foxglove.LaserScan`` has no field for:

@@ -2,16 +2,19 @@
 
 - Left, the final shared costmap (Nav2 costs: white free, shades of violet graded and
   inscribed, black lethal, grey unknown) with every freeze where the unit stood (red X
-  phantom, blue circle true block; size grows with duration) and every world event
-  (green triangle, labelled E1, E2, ... in time order).
+  phantom, blue circle true block; size grows with duration), every world event
+  (green triangle, labelled E1, E2, ... in time order) and every collision where the unit
+  touched (orange star: the fleet's, yellow diamond: the scenario's; ``fleet.sim``).
 - Top right, a timeline per unit [s]: freezes as bars (red phantom, blue true block),
-  events as dashed green lines under the same labels.
+  events as dashed green lines under the same labels, collisions as the same stars and
+  diamonds on the unit's row.
 - Bottom right, time to clear [s] per removed (or moved) object, in removal order; one
   never cleared gets a hatched bar from its removal to the end of the run, "never"; and
   beside it a table of the throughput metrics (docs/throughput.md; "n/a" where a mean
   has nothing to average).
-- The title names the scenario, policy and seed, and the key metrics; one legend for all
-  panels runs along the bottom.
+- The title names the scenario, policy and seed, and the key metrics (``collisions``: the
+  fleet's, followed by the scenario's when there were any); one legend for all panels
+  runs along the bottom.
 
 Drawn with matplotlib's object API on an Agg canvas: no display, no global pyplot state
 (safe in sweep worker processes).
@@ -38,11 +41,17 @@ from scenarios.record import EventRecord, FreezeRecord, RunRecord
 
 FIGURE_INCHES = (16.0, 9.0)
 DPI = 100  # -> 1600 x 900 px
+TITLE_FIT_CHARS = 170  # a title line longer than this is set smaller, to fit the width
 PHANTOM_COLOR = "#d62728"
 TRUE_BLOCK_COLOR = "#1f77b4"
 EVENT_COLOR = "#2ca02c"
 CLEARED_COLOR = "#17becf"
 NEVER_COLOR = "#7f7f7f"
+# CollisionEvent.cause -> (colour, marker, size [pt^2], legend label)
+COLLISION_STYLE = {
+    "fleet": ("#ff7f0e", "*", 220.0, "collision, fleet"),
+    "scenario": ("#ffd92f", "D", 80.0, "collision, scenario"),
+}
 
 REMOVAL_KINDS = ("remove", "move")  # events after which an object's old place must clear
 
@@ -81,7 +90,11 @@ def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     bottom = grid[1, 1].subgridspec(1, 2, width_ratios=(1.6, 1.0))
     _draw_time_to_clear(figure.add_subplot(bottom[0, 0]), record, end)
     _draw_throughput(figure.add_subplot(bottom[0, 1]), record)
-    figure.suptitle(title(record), fontsize=13)
+    text = title(record)
+    longest = max(len(line) for line in text.split("\n"))
+    figure.suptitle(
+        text, fontsize=13 if longest <= TITLE_FIT_CHARS else 13 * TITLE_FIT_CHARS / longest
+    )
     _legend(figure, record)
     with atomic_output(path) as f:
         figure.savefig(f, format="png", dpi=DPI)
@@ -96,8 +109,16 @@ def title(record: RunRecord) -> str:
         value = record.metrics.get(key)
         if isinstance(value, int | float) and not isinstance(value, bool):
             value = int(value) if fmt == "{:d}" else float(value)
-            shown.append(f"{label} {fmt.format(value)}")
+            shown.append(f"{label} {fmt.format(value)}" + _scenario_share(record, key))
     return head + ("\n" + "  ·  ".join(shown) if shown else "")
+
+
+def _scenario_share(record: RunRecord, key: str) -> str:
+    """After the fleet's ``collisions``: the scenario's, when there were any."""
+    extra = record.metrics.get("scenario_collisions")
+    if key != "collisions" or not isinstance(extra, int) or isinstance(extra, bool) or not extra:
+        return ""
+    return f" (+{extra} scenario)"
 
 
 def run_end(record: RunRecord) -> float:
@@ -107,6 +128,7 @@ def run_end(record: RunRecord) -> float:
     if isinstance(sim_seconds, int | float):
         stamps.append(float(sim_seconds))
     stamps += [f.start + f.duration for f in record.freezes]
+    stamps += [c.time for c in record.collisions]
     for stream in (record.units, record.events, record.grids, record.plans, record.scans):
         if stream:
             stamps.append(max(s.stamp for s in stream))
@@ -140,10 +162,10 @@ def _draw_map(ax: Axes, record: RunRecord) -> None:
             extent=(xmin, xmax, ymin, ymax),
             interpolation="nearest",
         )
-        ax.set_title(f"final costmap at {final.stamp:.1f} s, freezes and events")
+        ax.set_title(f"final costmap at {final.stamp:.1f} s, freezes, events and collisions")
     else:
         ax.text(0.5, 0.5, "no map recorded", ha="center", va="center", transform=ax.transAxes)
-        ax.set_title("freezes and events")
+        ax.set_title("freezes, events and collisions")
     ax.set_xlim(xmin, xmax)
     ax.set_ylim(ymin, ymax)
     ax.set_aspect("equal")
@@ -182,6 +204,22 @@ def _draw_map(ax: Axes, record: RunRecord) -> None:
             zorder=5,
             bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": EVENT_COLOR, "alpha": 0.85},
         )
+    for cause, group in _collisions_by_cause(record):
+        _scatter_collisions(ax, cause, [c.x for c in group], [c.y for c in group])
+
+
+def _collisions_by_cause(record: RunRecord) -> list[tuple[str, list]]:
+    """The run's collisions by cause (``COLLISION_STYLE`` order; unknown causes drawn as
+    the fleet's)."""
+    groups: dict[str, list] = {cause: [] for cause in COLLISION_STYLE}
+    for c in record.collisions:
+        groups[c.cause if c.cause in COLLISION_STYLE else "fleet"].append(c)
+    return list(groups.items())
+
+
+def _scatter_collisions(ax: Axes, cause: str, xs: list[float], ys: list[float]) -> None:
+    color, marker, size, _ = COLLISION_STYLE[cause]
+    ax.scatter(xs, ys, s=size, c=color, marker=marker, edgecolors="black", linewidths=0.8, zorder=6)
 
 
 def _numbered_events(record: RunRecord) -> list[tuple[str, EventRecord]]:
@@ -225,6 +263,20 @@ def _legend(figure: Figure, record: RunRecord) -> None:
             label=f"event ({len(record.events)})",
         ),
     ]
+    for cause, group in _collisions_by_cause(record):
+        color, marker, size, label = COLLISION_STYLE[cause]
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=color,
+                marker=marker,
+                markeredgecolor="black",
+                markersize=12 if marker == "*" else 8,
+                linestyle="none",
+                label=f"{label} ({len(group)})",
+            )
+        )
     colors = cost_colormap().colors
     for cost, label in (
         (FREE, "free"),
@@ -244,7 +296,10 @@ def _marker_area(freeze: FreezeRecord) -> float:
 
 def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
     units = sorted(
-        {u.unit_id for u in record.units} | {f.unit_id for f in record.freezes}, key=_natural_key
+        {u.unit_id for u in record.units}
+        | {f.unit_id for f in record.freezes}
+        | {c.unit_id for c in record.collisions},
+        key=_natural_key,
     )
     row = {unit: i for i, unit in enumerate(units)}
     for freeze in record.freezes:
@@ -266,13 +321,15 @@ def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
             color="darkgreen",
             transform=ax.get_xaxis_transform(),
         )
+    for cause, group in _collisions_by_cause(record):
+        _scatter_collisions(ax, cause, [c.time for c in group], [row[c.unit_id] for c in group])
     if not units:
         ax.text(0.5, 0.5, "no units recorded", ha="center", va="center", transform=ax.transAxes)
     ax.set_yticks(range(len(units)), units, fontsize=8 if len(units) > 12 else 9)
     ax.set_ylim(max(len(units), 1) - 0.5, -0.5)
     ax.set_xlim(0.0, max(end, 1.0))
     ax.set_xlabel("sim time [s]")
-    ax.set_title("freezes and events per unit", pad=16)
+    ax.set_title("freezes, events and collisions per unit", pad=16)
     ax.grid(axis="x", alpha=0.3)
 
 

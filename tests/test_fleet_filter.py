@@ -54,7 +54,7 @@ def make_scan(x, y, yaw, ranges, fov, range_max=20.0) -> Scan:
 @given(
     data=st.data(),
     n=st.integers(8, 120),
-    fov=st.sampled_from([2 * math.pi, math.pi, 1.0]),
+    fov=st.sampled_from([2 * math.pi, 6.0, math.pi, 1.0]),
     yaw=st.floats(-3.1, 3.1),
     others=st.lists(st.tuples(st.floats(-6, 6), st.floats(-6, 6), st.floats(0.1, 0.5)), max_size=6),
 )

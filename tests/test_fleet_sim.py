@@ -169,3 +169,141 @@ def test_a_person_walking_into_a_standing_unit_is_a_collision():
             (pytest.approx(0.4), "bob", "person")
         ]
         assert world.unit_pose("u1").x == 5.0  # it stood still: nowhere to be put back to
+
+
+# ------------------------------------------------------------------ collision causes
+def _rack_row():
+    rack = LAYOUT.obstacle("rack-1")
+    xmin, ymin, _, ymax = rack.shape.bounds()
+    return xmin, (ymin + ymax) / 2
+
+
+def test_a_unit_driven_into_a_rack_is_the_fleets_collision():
+    xmin, y = _rack_row()
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, [UnitSpec("u1", Pose2D(xmin - 1.5, y, 0.0))], seed=0)
+        sim.unit("u1").follow([(xmin + 2.0, y)])
+        events = [e for _ in range(40) for e in sim.step(0.1).collisions]
+    assert [(e.other_id, e.cause) for e in events] == [("rack-1", "fleet")]
+
+
+def test_objects_dropped_or_moved_onto_a_standing_unit_are_the_scenarios_collisions():
+    y = WAREHOUSE.lane_y[0]
+    tote = Obstacle("tote-1", Kind.TOTE, Box(5.1, y, 0.6, 0.4))
+    pod = Obstacle("pod-1", Kind.POD, Box(9.0, y, 1.0, 1.0))
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, [UnitSpec("u1", Pose2D(5.0, y, 0.0))], seed=0)
+        sim.schedule(0.3, lambda w: w.add(tote))  # dropped onto the unit
+        sim.schedule(0.5, lambda w: w.remove("tote-1"))
+        sim.schedule(0.5, lambda w: w.add(pod))  # clear of the unit: no contact
+        events = [e for _ in range(8) for e in sim.step(0.1).collisions]
+        world.move("pod-1", 5.4, y)  # moved onto it between steps, at run time
+        events += [e for _ in range(3) for e in sim.step(0.1).collisions]
+        assert world.unit_pose("u1") == Pose2D(5.0, y, 0.0)  # never moved, never put back
+    assert [(e.time, e.other_id, e.other_kind, e.cause) for e in events] == [
+        (pytest.approx(0.3), "tote-1", "tote", "scenario"),
+        (pytest.approx(0.9), "pod-1", "pod", "scenario"),
+    ]
+    assert (events[0].x, events[0].y) == (5.0, y)
+
+
+def test_a_person_walking_into_a_standing_unit_is_the_scenarios_collision():
+    y = WAREHOUSE.lane_y[0]
+    person = Obstacle("bob", Kind.PERSON, Cylinder(6.0, y, 0.25))
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, [UnitSpec("u1", Pose2D(5.0, y, 0.0))], seed=0)
+        sim.schedule(0.2, lambda w: w.add(person))
+        sim.schedule(0.4, lambda w: w.move("bob", 5.4, y))
+        events = [e for _ in range(6) for e in sim.step(0.1).collisions]
+    assert [(e.other_id, e.cause) for e in events] == [("bob", "scenario")]
+
+
+def test_an_object_that_appears_ahead_of_a_driving_unit_is_the_fleets_collision():
+    """Placed in its way, not on it: the unit was clear of it at the step's start and
+    drove into it."""
+    y = WAREHOUSE.lane_y[0]
+    tote = Obstacle("tote-1", Kind.TOTE, Box(6.0, y, 0.4, 0.4))
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, [UnitSpec("u1", Pose2D(5.0, y, 0.0))], seed=0)
+        sim.unit("u1").follow([(12.0, y)])
+        sim.schedule(0.5, lambda w: w.add(tote))
+        events = [e for _ in range(30) for e in sim.step(0.1).collisions]
+        x = world.unit_pose("u1").x
+    assert [(e.other_id, e.cause) for e in events] == [("tote-1", "fleet")]
+    assert x == pytest.approx(6.0 - 0.2 - 0.3, abs=1e-6)  # put back where it touched
+
+
+def test_unit_contacts_are_the_fleets_whether_both_or_one_moved():
+    y = WAREHOUSE.lane_y[0]
+    specs = [UnitSpec("u1", Pose2D(5.0, y, 0.0)), UnitSpec("u2", Pose2D(9.0, y, math.pi))]
+    with World(LAYOUT) as world:  # head-on, both moving
+        sim = FleetSim(world, specs, seed=0)
+        sim.unit("u1").follow([(12.0, y)])
+        sim.unit("u2").follow([(2.0, y)])
+        head_on = [e for _ in range(40) for e in sim.step(0.1).collisions]
+    with World(LAYOUT) as world:  # u1 drives into u2, which stands still
+        sim = FleetSim(world, specs, seed=0)
+        sim.unit("u1").follow([(12.0, y)])
+        rear = [e for _ in range(60) for e in sim.step(0.1).collisions]
+        assert world.unit_pose("u2").x == 9.0
+    for events in (head_on, rear):
+        assert sorted((e.unit_id, e.other_id, e.cause) for e in events) == [
+            ("u1", "u2", "fleet"),
+            ("u2", "u1", "fleet"),
+        ]
+
+
+def test_a_unit_put_back_from_a_rack_and_run_into_by_its_follower_reports_both():
+    """The follower's step ends on the leader only once the leader is put back: still a
+    collision, reported, and the follower is put back too (it never drives through)."""
+    xmin, y = _rack_row()
+    specs = [
+        UnitSpec("a", Pose2D(xmin - 1.5, y, 0.0)),
+        UnitSpec("b", Pose2D(xmin - 1.5 - 0.62, y, 0.0)),  # 2 cm behind a
+    ]
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, specs, seed=0)
+        for spec in specs:
+            sim.unit(spec.unit_id).follow([(xmin + 2.0, y)])
+        events = [e for _ in range(40) for e in sim.step(0.1).collisions]
+        gap = world.unit_pose("a").x - world.unit_pose("b").x
+    assert sorted((e.unit_id, e.other_id, e.cause) for e in events) == [
+        ("a", "b", "fleet"),
+        ("a", "rack-1", "fleet"),
+        ("b", "a", "fleet"),
+    ]
+    assert len({e.time for e in events}) == 1  # all in the step a touched the rack
+    assert gap == pytest.approx(0.6, abs=1e-6)  # b stopped where it touched a
+
+
+def test_a_still_unit_among_still_things_reuses_its_last_cast_and_anything_moving_recasts():
+    specs = [
+        UnitSpec("u1", Pose2D(1.83, 4.83, 0.0), lidar=LidarConfig(beams=90)),
+        UnitSpec("u2", Pose2D(8.0, 4.83, 0.0), lidar=LidarConfig(beams=90)),
+    ]
+    with World(LAYOUT) as world:
+        sim = FleetSim(world, specs, seed=0)
+        casts = []
+        cast = world.cast_rays
+
+        def counting(*args, **kwargs):
+            casts.append(kwargs.get("frame_unit"))
+            return cast(*args, **kwargs)
+
+        world.cast_rays = counting  # a spy on this world only
+        first = {s.unit_id: s for s in sim.step(0.1).scans}
+        assert sorted(casts) == ["u1", "u2"]
+        casts.clear()
+        still = {s.unit_id: s for s in sim.step(0.1).scans}
+        assert casts == []  # nothing moved: no rays cast, the same true ranges
+        assert np.array_equal(still["u1"].ranges, first["u1"].ranges)
+        sim.unit("u2").follow([(9.0, 4.83)])  # u2 drives: both see a changed scene
+        sim.step(0.1)
+        assert sorted(casts) == ["u1", "u2"]
+        casts.clear()
+        sim.unit("u2").halt()
+        sim.step(0.1)
+        casts.clear()
+        world.add(Obstacle("tote-1", Kind.TOTE, Box(5.0, 4.8, 0.6, 0.4)))  # the world changes
+        sim.step(0.1)
+        assert sorted(casts) == ["u1", "u2"]

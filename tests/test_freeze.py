@@ -5,8 +5,17 @@ import pytest
 
 from mapserver.costvalues import LETHAL
 from mapserver.geometry import GridGeometry
-from planner.freeze import Freeze, FreezeDetector, UnitObservation, classify, stale_free_cells
+from planner.freeze import (
+    Freeze,
+    FreezeDetector,
+    LaneBlock,
+    TruthLanes,
+    UnitObservation,
+    classify,
+    stale_free_cells,
+)
 from planner.grid_search import GridPlanner
+from planner.lane_graph import LaneGraph
 
 
 def feed(detector, states, dt=0.25, unit="u1"):
@@ -75,3 +84,112 @@ def test_stale_free_plans_cross_cells_lethal_in_ground_truth():
 def test_a_bad_minimum_is_refused():
     with pytest.raises(ValueError, match="min_freeze_s"):
         FreezeDetector(0.0)
+
+
+# ------------------------------------------------------------------ lane freezes
+LANE_GEOMETRY = GridGeometry(80, 40, 0.1)  # 8 m x 4 m
+LINE = {"a": (0.55, 1.05), "b": (3.55, 1.05), "c": (6.55, 1.05)}
+
+
+def lane_world():
+    """A lane a - b - c along y = 1.05 m on open floor, and the same floor with a small
+    box standing on the lane line between b and c (x 4.5 .. 4.7 m): the lane is truly
+    blocked, yet the floor beside the box is wide open."""
+    graph = LaneGraph(LINE, [("a", "b"), ("b", "c")])
+    open_floor = np.zeros(LANE_GEOMETRY.shape, np.uint8)
+    boxed = open_floor.copy()
+    boxed[9:12, 45:47] = LETHAL
+    return graph, open_floor, boxed
+
+
+def grid_plan(costs, start, goal):
+    return GridPlanner(LANE_GEOMETRY).plan(costs, start, goal).found
+
+
+def test_a_lane_freeze_is_judged_by_the_lane_router_on_ground_truth_not_the_grid_planner():
+    graph, open_floor, boxed = lane_world()
+    lanes = TruthLanes(graph, LANE_GEOMETRY)
+    block = LaneBlock(("a",), "c", (("b", "c"),), ((4.55, 1.05),))
+    freeze = Freeze(
+        "u1", 0.0, 3.0, "no lane to (6.55, 1.05)", LINE["a"], LINE["c"], lane_block=block
+    )
+    # The box truly blocks the lane: a true block, although the grid planner goes round it
+    # (the old rule called this a phantom).
+    assert grid_plan(boxed, LINE["a"], LINE["c"]) is True
+    assert classify(freeze, lambda t: boxed, grid_plan, lane_plan=lanes) is False
+    assert classify(freeze, lambda t: open_floor, grid_plan, lane_plan=lanes) is True
+    # removed during the freeze: phantom from then on
+    assert classify(freeze, lambda t: boxed if t < 2 else open_floor, grid_plan, lane_plan=lanes)
+    assert not graph.is_blocked("b", "c") and graph.version == 0  # the live graph untouched
+
+
+def test_a_lane_freeze_goal_off_the_lanes_does_not_make_it_a_true_block():
+    """The router drives to the goal's node; a goal point the grid planner cannot reach
+    (inside a rack beside the lane) says nothing about the lanes."""
+    graph, open_floor, _ = lane_world()
+    walled_goal = open_floor.copy()
+    walled_goal[20:40, 60:70] = LETHAL  # the goal point (6.5, 3.0) is in here
+    freeze = Freeze(
+        "u1",
+        0.0,
+        3.0,
+        "no lane to (6.50, 3.00)",
+        LINE["a"],
+        (6.5, 3.0),
+        lane_block=LaneBlock(("a",), "c"),
+    )
+    assert grid_plan(walled_goal, LINE["a"], (6.5, 3.0)) is False
+    assert (
+        classify(
+            freeze, lambda t: walled_goal, grid_plan, lane_plan=TruthLanes(graph, LANE_GEOMETRY)
+        )
+        is True
+    )
+
+
+def test_a_stranded_unit_gets_through_only_if_its_lane_is_truly_clear_ahead_of_it():
+    graph, open_floor, boxed = lane_world()
+    lanes = TruthLanes(graph, LANE_GEOMETRY)
+    block = LaneBlock(("b", "c"), "c", (("b", "c"),))
+
+    def stranded_at(x):
+        return Freeze(
+            "u1", 0.0, 2.0, "stranded on a blocked lane", (x, 1.05), LINE["c"], lane_block=block
+        )
+
+    assert classify(stranded_at(4.0), lambda t: boxed, grid_plan, lane_plan=lanes) is False
+    assert classify(stranded_at(4.0), lambda t: open_floor, grid_plan, lane_plan=lanes) is True
+    # past the box already: the coordinator's own rule lets it carry on
+    assert classify(stranded_at(5.5), lambda t: boxed, grid_plan, lane_plan=lanes) is True
+
+
+def test_a_lane_freeze_must_be_classified_with_the_lane_router():
+    freeze = Freeze(
+        "u1", 0.0, 2.0, "no lane", (0.5, 0.5), (5.0, 5.0), lane_block=LaneBlock(("a",), "c")
+    )
+    with pytest.raises(ValueError, match="lane freeze"):
+        classify(freeze, lambda t: np.zeros((5, 5), np.uint8), grid_plan)
+
+
+def test_a_freeze_keeps_its_first_lane_block_and_every_lane_named_during_it():
+    detector = FreezeDetector()
+    first = LaneBlock(("a",), "c", (("b", "c"),), ((4.5, 1.0),))
+    later = LaneBlock(("a",), "c", (("b", "c"), ("a9", "c")), ((4.5, 1.0), (6.0, 1.5)))
+    for i, block in enumerate([first, first, later, later, later]):
+        detector.observe(
+            UnitObservation(
+                "u1",
+                i * 0.25,
+                True,
+                False,
+                "no lane",
+                block.points,
+                (6.0, 0.0),
+                (0.0, 0.0),
+                lane_block=block,
+            )
+        )
+    (freeze,) = detector.finish(2.0)
+    assert freeze.lane_block == first
+    assert freeze.lanes == [("b", "c"), ("a9", "c")]
+    assert freeze.blocking_points == [(4.5, 1.0), (6.0, 1.5)]

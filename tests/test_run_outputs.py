@@ -1,5 +1,5 @@
-"""The writers of a scenario run's outputs: freezes.json, report.png and replay.mcap
-(CONTRACT 3), from a small RunRecord made by hand."""
+"""The writers of a scenario run's outputs: freezes.json, collisions.json, report.png and
+replay.mcap (CONTRACT 3), from a small RunRecord made by hand."""
 
 from __future__ import annotations
 
@@ -14,9 +14,11 @@ import pytest
 from mcap.reader import make_reader
 from PIL import Image
 
+from fleet.sim import CollisionEvent
 from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.geometry import GridGeometry
 from mapserver.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
+from scenarios.collisions_json import collision_counts, write_collisions
 from scenarios.foxglove_messages import decode_ranges, encode_ranges
 from scenarios.foxglove_schemas import SCHEMAS
 from scenarios.freezes_json import write_freezes
@@ -69,8 +71,9 @@ def _grid(stamp: float, version: int) -> GridSample:
 
 def make_record() -> RunRecord:
     """Three units for 10 s, two object samples (a pod removed, a tote dropped), three
-    grids, seven scans (two units), three plans (one stale-free), three events and two
-    freezes: u1 phantom, u2 true block."""
+    grids, seven scans (two units), three plans (one stale-free), three events, two
+    freezes (u1 phantom, u2 a true-block lane freeze) and two collisions (u2 drove into
+    the tote, the person walked into u10)."""
     record = RunRecord("moved_pod", "sticky", 7, GEOMETRY, unit_radius=0.35, unit_height=0.5)
     for i in range(21):
         t = i * 0.5
@@ -115,6 +118,7 @@ def make_record() -> RunRecord:
             4.0,
             (BlockingCell(2.125, 4.875, True, 0.97, 4.75, (("u2", 4.75),)),),
             (RecoveryStep(5.5, "wait", "path blocked"),),
+            lanes=(("j1_2", "s-1"),),
         ),
         FreezeRecord(
             "u1",
@@ -134,13 +138,18 @@ def make_record() -> RunRecord:
             ),
         ),
     ]
+    record.collisions += [
+        CollisionEvent(2.5, "u2", "t1", "tote", 2.1, 4.6, "fleet"),
+        CollisionEvent(4.2, "u10", "h1", "person", 6.0, 1.4, "scenario"),
+    ]
     record.time_to_clear = {"p1": 2.25, "p9": None}
     record.metrics = {
         "phantom_freezes": 1,
         "phantom_freeze_seconds": 2.5,
         "true_block_freezes": 1,
         "stale_free_plans": 1,
-        "collisions": 0,
+        "collisions": 1,
+        "scenario_collisions": 1,
         "tasks_completed": 4,
         "sim_seconds": 10.0,
     }
@@ -171,9 +180,11 @@ def test_freezes_json_lists_every_freeze_with_its_evidence_in_start_order(record
         "true_block",
         "reason",
         "position",
+        "lanes",
         "blocking_cells",
         "recovery",
     ]
+    assert phantom["lanes"] == [] and freezes[1]["lanes"] == [["j1_2", "s-1"]]
     assert (phantom["phantom"], phantom["true_block"]) == (True, False)
     assert (freezes[1]["phantom"], freezes[1]["true_block"]) == (False, True)
     assert phantom["start"] == 3.5 and phantom["duration"] == 2.5
@@ -203,6 +214,27 @@ def test_freezes_json_of_a_run_without_freezes_is_an_empty_list(tmp_path):
     assert json.loads(path.read_text()) == []
 
 
+# ------------------------------------------------------------------------------ collisions.json
+def test_collisions_json_lists_every_collision_with_its_cause_in_time_order(record, tmp_path):
+    unordered = make_record()
+    unordered.collisions.reverse()
+    unordered.collisions.append(CollisionEvent(2.5, "u1", "u2", "unit", 1.23456, 2.0, "fleet"))
+    path = write_collisions(unordered, tmp_path / "collisions.json")
+    collisions = json.loads(path.read_text())
+    assert collisions == [
+        {"time": 2.5, "unit": "u2", "other": "t1", "other_kind": "tote", "cause": "fleet",
+         "position": {"x": 2.1, "y": 4.6}},
+        {"time": 2.5, "unit": "u1", "other": "u2", "other_kind": "unit", "cause": "fleet",
+         "position": {"x": 1.235, "y": 2.0}},
+        {"time": 4.2, "unit": "u10", "other": "h1", "other_kind": "person",
+         "cause": "scenario", "position": {"x": 6.0, "y": 1.4}},
+    ]  # fmt: skip
+    assert collision_counts(unordered) == {"collisions": 2, "scenario_collisions": 1}
+    empty = RunRecord("x", "decay", 1, GEOMETRY)
+    assert json.loads(write_collisions(empty, tmp_path / "none.json").read_text()) == []
+    assert collision_counts(empty) == {"collisions": 0, "scenario_collisions": 0}
+
+
 # ------------------------------------------------------------------------------ report.png
 def test_report_is_a_1600_by_900_png(record, tmp_path):
     path = write_report(record, tmp_path / "report.png")
@@ -211,6 +243,32 @@ def test_report_is_a_1600_by_900_png(record, tmp_path):
         assert image.size == (1600, 900)
         pixels = np.asarray(image.convert("RGB"))
     assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50  # a picture, not a blank page
+
+
+def test_report_marks_every_collision_on_the_map_and_the_timeline(record, tmp_path):
+    def panels(rec, name):
+        """(map, timeline) pixels: the left panel, the top-right one (not the legend)."""
+        with Image.open(write_report(rec, tmp_path / name)) as image:
+            rgb = np.asarray(image.convert("RGB"))
+        return rgb[80:800, :850].reshape(-1, 3), rgb[80:500, 880:].reshape(-1, 3)
+
+    def solid(pixels, color: str) -> int:
+        rgb = [int(color[i : i + 2], 16) for i in (1, 3, 5)]
+        return int((pixels == rgb).all(axis=1).sum())
+
+    bare = make_record()
+    bare.collisions.clear()
+    with_, without = panels(record, "with.png"), panels(bare, "without.png")
+    for drawn, empty in zip(with_, without, strict=True):
+        for color in ("#ff7f0e", "#ffd92f"):  # fleet's star, scenario's diamond
+            assert solid(empty, color) == 0 and solid(drawn, color) > 20
+
+
+def test_report_title_counts_the_fleets_collisions_then_the_scenarios(record):
+    assert "collisions 1 (+1 scenario)" in title(record)
+    quiet = make_record()
+    quiet.metrics["scenario_collisions"] = 0
+    assert "collisions 1  ·" in title(quiet)
 
 
 def test_report_title_names_the_run_and_its_key_metrics(record):
@@ -287,7 +345,8 @@ def test_replay_holds_every_channel_with_its_foxglove_schema_and_count(record, r
         "/map/occupancy": 3,
         "/map/costmap": 3,
         "/scene": 21 + 2,  # one update per unit-sample stamp, one per objects sample
-        "/log": 3 + 2 + 3 + 1,  # events, freezes, recovery steps, stale-free plans
+        "/log": 3 + 2 + 3 + 1 + 2,  # events, freezes, recovery steps, stale-free plans,
+        # collisions
     }
     for schema in summary.schemas.values():
         assert schema.encoding == "jsonschema"
@@ -363,6 +422,28 @@ def test_replay_log_explains_each_freeze(replay):
     true_block = next(d for d in logs if "true-block" in d["message"])
     assert true_block["name"] == "u2" and true_block["level"] == 2  # INFO
     assert "truth occupied" in true_block["message"]
+
+
+def test_replay_log_reports_each_collision_with_its_cause(replay):
+    _, messages = _read_all(replay)
+    logs = [d for _, ch, _, d in messages if ch.topic == "/log" and "COLLISION" in d["message"]]
+    assert [(d["name"], d["level"], d["timestamp"]) for d in logs] == [
+        ("u2", 4, {"sec": 2, "nsec": 500_000_000}),  # ERROR: the fleet drove into it
+        ("u10", 3, {"sec": 4, "nsec": 200_000_000}),  # WARNING: the scenario's
+    ]
+    assert "touched tote t1" in logs[0]["message"] and "cause: fleet" in logs[0]["message"]
+    assert "(2.10, 4.60)" in logs[0]["message"]
+    assert "touched person h1" in logs[1]["message"]
+    assert "cause: scenario" in logs[1]["message"]
+
+
+def test_replay_log_names_the_blocked_lanes_of_a_lane_freeze(replay):
+    _, messages = _read_all(replay)
+    logs = [d for _, ch, _, d in messages if ch.topic == "/log" and "freeze" in d["message"]]
+    lane = next(d for d in logs if d["name"] == "u2")
+    assert "blocked lanes (1): j1_2-s-1" in lane["message"]
+    phantom = next(d for d in logs if d["name"] == "u1")
+    assert "blocked lanes" not in phantom["message"]
 
 
 def test_plans_become_poses_heading_along_the_path(replay):

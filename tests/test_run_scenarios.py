@@ -41,6 +41,8 @@ def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     assert metrics["scans_fused"] == 2 * 20 * 10  # two units at 10 Hz
     assert len(metrics["time_to_clear_s"]) == 1  # one removal event
     assert isinstance(json.loads((out / "freezes.json").read_text()), list)
+    collisions = json.loads((out / "collisions.json").read_text())
+    assert sum(c["cause"] == "fleet" for c in collisions) == metrics["collisions"]
     trips = json.loads((out / "trips.json").read_text())
     assert len(trips) == metrics["tasks_completed"]
     for key in ("trips_per_unit_hour", "fleet_efficiency", "moving_share", "mean_speed_moving"):
