@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 
 @contextlib.contextmanager
@@ -30,3 +31,12 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def write_json(path: str | os.PathLike[str], value: Any) -> Path:
+    """Write ``value`` to ``path`` as indented JSON and a newline, atomically
+    (``atomic_output``); NaN and infinities are refused (strict JSON). Returns the path."""
+    text = json.dumps(value, indent=2, allow_nan=False)
+    with atomic_output(path) as f:
+        f.write(text.encode() + b"\n")
+    return Path(path)

@@ -23,12 +23,11 @@ the fleet), ``scenario_collisions`` those the scenario caused.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from mapserver.atomic import atomic_output
+from mapserver.atomic import write_json
 from scenarios.record import RunRecord
 
 if TYPE_CHECKING:
@@ -44,10 +43,7 @@ def write_collisions(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Write ``record``'s collisions to ``path`` (``collisions.json``) atomically; returns
     the path."""
     events = sorted(record.collisions, key=lambda e: e.time)  # stable: the sim's order
-    text = json.dumps([collision_to_dict(e) for e in events], indent=2, allow_nan=False)
-    with atomic_output(path) as f:
-        f.write(text.encode() + b"\n")
-    return Path(path)
+    return write_json(path, [collision_to_dict(e) for e in events])
 
 
 def collision_to_dict(event: CollisionEvent) -> dict[str, Any]:

@@ -26,13 +26,12 @@ Times and positions are rounded to 1 ms and 1 mm, probabilities to 1e-4.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import atomic_output
+from mapserver.atomic import write_json
 from scenarios.record import BlockingCell, FreezeRecord, RecoveryStep, RunRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms
@@ -43,10 +42,7 @@ PROBABILITY_DECIMALS = 4
 def write_freezes(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Write ``record``'s freezes to ``path`` (``freezes.json``) atomically; returns the path."""
     freezes = sorted(record.freezes, key=lambda f: (f.start, f.unit_id))
-    text = json.dumps([freeze_to_dict(f) for f in freezes], indent=2, allow_nan=False)
-    with atomic_output(path) as f:
-        f.write(text.encode() + b"\n")
-    return Path(path)
+    return write_json(path, [freeze_to_dict(f) for f in freezes])
 
 
 def freeze_to_dict(freeze: FreezeRecord) -> dict[str, Any]:

@@ -12,12 +12,11 @@ for it; ``actual_s = done - assigned``.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import atomic_output
+from mapserver.atomic import write_json
 from scenarios.record import RunRecord, TripRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms
@@ -25,10 +24,7 @@ TIME_DECIMALS = 3  # [s] 1 ms
 
 def write_trips(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Write ``record``'s trips to ``path`` (``trips.json``) atomically; returns the path."""
-    text = json.dumps([trip_to_dict(t) for t in record.trips], indent=2, allow_nan=False)
-    with atomic_output(path) as f:
-        f.write(text.encode() + b"\n")
-    return Path(path)
+    return write_json(path, [trip_to_dict(t) for t in record.trips])
 
 
 def trip_to_dict(trip: TripRecord) -> dict[str, Any]:
