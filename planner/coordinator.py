@@ -2,8 +2,8 @@
 
 Reservations (``planner.reservations``: Silver's reservation table, windows opened by
 grants and closed by the units' reported progress). Grants are made just in time, one
-edge at a time, because the units' real timing is uncertain; a window is only ever
-opened on a resource nobody else holds.
+edge at a time (or a few ahead of a moving unit: reserving ahead), because the units'
+real timing is uncertain; a window is only ever opened on a resource nobody else holds.
 
 - A unit at a node holds that node, from the moment it claims it until it has left.
 - To drive edge (u, v) a unit must be granted it: the lane {u, v} must be free (a lane
@@ -25,50 +25,20 @@ opened on a resource nobody else holds.
   longer wait, unit id). A unit that cannot have it waits, and the coordinator records
   whom it waits for.
 
-At most one unit is on a lane at a time (the head-node reservation): split long lanes
-with waypoints (``LaneGraph.from_warehouse(segment_m=...)``) so units can follow one
-another. The only time a corridor is claimed both ways is while units turn back from a
-lane that became blocked (below): the turning unit claims the way back at once, so that
-the units following it may turn too.
+At most one unit drives into a lane at a time (the head-node reservation): split long
+lanes with waypoints (``LaneGraph.from_warehouse(segment_m=...)``) so units can follow
+one another. The only time a corridor is claimed both ways is while units turn back
+from a lane that became blocked (``policy_blocked_lanes``): the turning unit claims the
+way back at once, so that the units following it may turn too.
 
-Standing units. A unit whose way is held by a unit standing still (parked, or with no
-route) does not wait for it forever: the standing unit is moved aside to a free
-neighbour off the waiting unit's route, or pushed on along it (never back toward the
-waiting unit), or, with no free neighbour, one of its own standing neighbours is moved
-first; an idle unit moved aside parks where it is moved to. Failing that, the waiting
-unit takes a route around every parked unit if one exists. Either is tried when the
-wait starts and every ``retry_s`` [s].
+The driver grants, tracks progress and keeps the log; each policy lives in a module
+of its own, mixed into ``LaneCoordinator``:
 
-Deadlocks. Waits form a wait-for graph (unit -> the units holding what it needs); a
-cycle in it is a deadlock (Coffman, Elphick and Shoshani, *System Deadlocks*, ACM
-Computing Surveys 3(2), 1971; Holt, *Some Deadlock Properties of Computer Systems*, ACM
-Computing Surveys 4(3), 1972). After the tick's grants the coordinator finds cycles
-with ``networkx.find_cycle``, one at a time, and breaks each. The unit that gives way is
-the lowest-priority unit of the cycle standing at a node (ties: the larger unit id, in
-natural order, so "u10" > "u9"). It is
-
-1. rerouted: a route to its goal around the nodes held by the unit it waits for, or
-   else around its contested next edge and node (never around its own goal), if the
-   first step of that route can be granted now;
-2. else backed off: to the nearest node within ``BACK_OFF_HOPS`` edges, over edges it
-   could be granted now, where it may stop (not a crossing), preferring one off the
-   route of the unit waiting for it, then the node it came from; it replans from there;
-3. else the next unit of the cycle is tried. A cycle nobody can leave is recorded once
-   as an unresolved wait and tried again every ``retry_s`` [s].
-
-Blocked lanes. ``refresh(now)`` re-reads the costmap through the injected client
-(``LaneGraph.refresh``: one ``POST /v1/query/segments``). For every lane newly blocked:
-
-- a unit on the lane that is already past the blocked stretch (its position along the
-  lane beyond the far end of the block) carries on to the lane's head and is rerouted
-  from there;
-- any other unit on the lane turns back to the node it came from, driving the lane in
-  reverse (even a one-way lane: an emergency move, on a lane it holds alone); if that
-  node has been taken meanwhile it stops where it is ("stranded") and waits for it. A
-  unit whose position was never reported counts as still at the lane's start;
-- every unit whose remaining route uses a blocked lane is rerouted from its node (or
-  from its edge's head); with no route it waits at its node until a refresh changes the
-  graph.
+- ``planner.policy_reserve_ahead``: granting the next lanes before a unit arrives;
+- ``planner.policy_standing``: moving standing units out of a waiting unit's way;
+- ``planner.policy_deadlocks``: finding and breaking wait-for cycles;
+- ``planner.policy_blocked_lanes``: turning back or rerouting off lanes the costmap
+  blocks.
 
 Decisions. Every route, grant, wait, reroute, back-off and arrival is a ``Decision`` with
 its ``cause`` (a short code) and a sentence (``detail``), kept in ``log``: a replay can
@@ -85,13 +55,12 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import networkx as nx
-
 from planner.lane_graph import Lane, LaneGraph, SegmentQuerier, lane_key
+from planner.policy_blocked_lanes import BlockedLanes
+from planner.policy_deadlocks import Deadlocks
+from planner.policy_reserve_ahead import Behind, ReserveAhead
+from planner.policy_standing import StandingUnits
 from planner.reservations import Reservation, ReservationTable, unit_order
-
-BACK_OFF_HOPS = 3
-"""How far [edges] a deadlocked unit looks for a place to back off to."""
 
 ACTIONS = ("route", "grant", "wait", "reroute", "back_off", "arrived")
 """Decision actions: a new task's route, an edge granted, a wait, a changed route, a
@@ -181,18 +150,7 @@ class _Unit:
     wait_since: float = 0.0
     retry_at: float = -math.inf
     plan_version: int = -1
-    behind: list[_Behind] = field(default_factory=list)
-
-
-@dataclass(slots=True)
-class _Behind:
-    """An edge a unit was granted past while still driving it (reserving ahead): what
-    of it the unit still holds until its body has left it."""
-
-    tail: str
-    head: str
-    tail_held: bool
-    lane_held: bool = True
+    behind: list[Behind] = field(default_factory=list)
 
 
 @dataclass
@@ -201,7 +159,7 @@ class _Tick:
     out: list[Decision] = field(default_factory=list)
 
 
-class LaneCoordinator:
+class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
     """Grants lanes to units on ``graph`` (module docstring).
 
     client: what ``refresh`` reads the costmap through (``MapClient`` or anything with its
@@ -449,45 +407,6 @@ class LaneCoordinator:
         if head in self._ends or len(u.route) == 1:
             self.table.unclaim(u.uid)  # out of the corridor, or standing in it
 
-    def _reserve_ahead(self, tick: _Tick, u: _Unit) -> None:
-        """Grant a unit near its edge's head the next edges of its route while each is
-        free and its head is within ``reserve_ahead_m`` [m]; it keeps what it drives over
-        until its body has left it (``_release_behind``)."""
-        assert u.pos is not None
-        edges = self.graph.graph.edges
-        while u.edge is not None and len(u.route) > 2:
-            tail, head = u.edge
-            if math.dist(u.pos, self._xy[head]) > self.reserve_ahead_m:
-                return
-            rest = u.route[1:]
-            chain = {tail, head, *(b.tail for b in u.behind)}
-            if rest[1] in chain:  # the route comes back: drive up to the turn first
-                return
-            if edges[rest[0], rest[1]]["blocked"] or self._step_blockers(u.uid, rest):
-                return
-            u.behind.append(_Behind(tail, head, u.tail_held))
-            u.route.pop(0)
-            u.prev = tail
-            self._grant(tick, u, rest[1], "grant", "route", f"{head} -> {rest[1]} (ahead)")
-
-    def _release_behind(self, u: _Unit) -> None:
-        """Release what a unit has driven past: the lanes before the one it is on now
-        (the lane of its chain nearest to it, the later one on a tie: so a unit cutting
-        a corner has left the first lane once nearer the second) and the nodes it is on
-        or past and ``clear_m`` [m] from."""
-        assert u.pos is not None
-        chain = [(b.tail, b.head) for b in u.behind] + ([u.edge] if u.edge else [])
-        gaps = [_segment_distance(u.pos, self._xy[a], self._xy[b]) for a, b in chain]
-        on = min(range(len(chain)), key=lambda k: (gaps[k], -k))
-        for k, b in enumerate(u.behind[: on + 1]):
-            if b.tail_held and math.dist(u.pos, self._xy[b.tail]) > self.clear_m:
-                self.table.release_node(u.uid, b.tail)
-                b.tail_held = False
-            if b.lane_held and k < on:
-                self.table.release_lane(u.uid, b.tail, b.head)
-                b.lane_held = False
-        u.behind = [b for b in u.behind if b.tail_held or b.lane_held]
-
     def _park(self, tick: _Tick, u: _Unit) -> None:
         node = u.route[0]
         self._parked[node] = u.uid
@@ -545,73 +464,6 @@ class LaneCoordinator:
             cause, detail = "exit_held", f"the way out of crossing {nxt} is held by {who}"
         self._say(tick, u, "wait", cause, detail, edge=(cur, nxt), waiting_for=blockers)
 
-    def _clear_way(self, tick: _Tick, w: _Unit, standing: list[_Unit]) -> bool:
-        """Move standing units out of ``w``'s way, each to a free neighbour.
-
-        Off w's route, or else further along it (a push: w meets the unit again one node
-        on and pushes it on until it can step off); never back toward w, which would only
-        swap the two places. A unit with no free neighbour has one of its standing
-        neighbours (off w's route) moved aside first, to be moved itself on a later try:
-        a push two deep. An idle unit parks where it is moved to (that becomes its goal:
-        its task was done, the next one is the caller's to give); a unit with no route
-        keeps its goal. True if a unit moved.
-        """
-        on_route = {n: i for i, n in enumerate(w.route)}
-        moved = False
-        for p in standing:
-            here = on_route.get(p.route[0], len(on_route))
-            behind = {n for n, i in on_route.items() if i <= here}  # back toward w
-            if self._move_aside(tick, p, behind, set(on_route), w.uid):
-                moved = True
-                continue
-            for q_node in sorted(self.graph.graph.successors(p.route[0])):
-                holder = self.table.holder(q_node)
-                q = self._units[holder] if holder is not None else None
-                if q is None or q_node in on_route or q is w or not self._standing(q):
-                    continue
-                if self._move_aside(tick, q, set(on_route) | {p.route[0]}, set(), w.uid):
-                    moved = True
-                    break
-        return moved
-
-    def _move_aside(
-        self, tick: _Tick, p: _Unit, never: set[str], rather_not: set[str], for_uid: str
-    ) -> bool:
-        """Grant standing unit ``p`` the edge to a free neighbour not in ``never``.
-
-        Preference: not in ``rather_not``, not a crossing, not a moving or waiting unit's
-        goal, then edge weight and node id.
-        """
-        node = p.route[0]
-        edges = self.graph.graph.edges
-        options = [
-            m
-            for m in self.graph.graph.successors(node)
-            if m not in never
-            and not edges[node, m]["blocked"]
-            and not self.table.blockers(p.uid, node, m)
-        ]
-        if not options:
-            return False
-        goals = {u.goal for u in self._sorted if not self._standing(u)}
-        step = min(
-            options,
-            key=lambda m: (
-                m in rather_not,
-                m in self._crossings,
-                m in goals,
-                edges[node, m]["weight"],
-                m,
-            ),
-        )
-        if self._parked.get(node) == p.uid:
-            del self._parked[node]
-            p.goal = step
-        p.route = [node, step]
-        detail = f"standing at {node}, moving aside to {step} for {for_uid}"
-        self._grant(tick, p, step, "back_off", "clear_way", detail, (for_uid,))
-        return True
-
     def _grant(
         self,
         tick: _Tick,
@@ -628,220 +480,6 @@ class LaneCoordinator:
         u.edge, u.tail_held = (cur, nxt), True
         u.waiting = ()
         self._say(tick, u, action, cause, detail, edge=(cur, nxt), waiting_for=waiting_for)
-
-    def _detour(
-        self,
-        tick: _Tick,
-        u: _Unit,
-        avoid_edges: set[tuple[str, str]],
-        avoid_nodes: set[str],
-        cause: str,
-        detail: str,
-        waiting_for: tuple[str, ...],
-        strict: bool = False,
-    ) -> bool:
-        """Reroute a waiting unit avoiding edges and nodes, if its new first step is free now.
-
-        strict: only a route that avoids every parked unit will do.
-        """
-        cur = u.route[0]
-        path = self._plan(cur, u.goal, avoid_edges, avoid_nodes - {u.goal}, strict)
-        if path is None or len(path) < 2 or self._step_blockers(u.uid, path):
-            return False
-        u.route = path
-        self._say(tick, u, "reroute", cause, detail, waiting_for=waiting_for)
-        self._grant(tick, u, path[1], "grant", cause, f"{cur} -> {path[1]} (detour)")
-        return True
-
-    def _back_off(
-        self, tick: _Tick, u: _Unit, behind: _Unit, detail: str, waiting_for: tuple[str, ...]
-    ) -> bool:
-        """Move aside to the nearest free place to stop, then replan from there.
-
-        Searches breadth-first, up to ``BACK_OFF_HOPS`` edges, over edges ``u`` could be
-        granted now, for a node that is not a crossing. Preference: fewest hops, then off
-        the route of ``behind`` (the unit of the cycle waiting for ``u``), then the node
-        ``u`` came from, then weight and node id. With no such node, any free neighbour
-        other than the contested one will do.
-        """
-        cur, nxt = u.route[0], u.route[1]
-        in_way = set(behind.route)
-        edges = self.graph.graph.edges
-
-        def free(a: str) -> list[str]:
-            return [
-                m
-                for m in self.graph.graph.successors(a)
-                if not edges[a, m]["blocked"] and not self.table.blockers(u.uid, a, m)
-            ]
-
-        def rank(path: list[str]) -> tuple[object, ...]:
-            m = path[-1]
-            return (m in in_way, m != u.prev, self.graph.route_length(path), m)
-
-        paths = [[cur]]
-        seen = {cur}
-        best: list[str] | None = None
-        for _ in range(BACK_OFF_HOPS):
-            paths = [[*p, m] for p in paths for m in free(p[-1]) if m not in seen]
-            seen.update(p[-1] for p in paths)
-            stops = [p for p in paths if p[-1] not in self._crossings]
-            if stops:
-                best = min(stops, key=rank)
-                break
-        if best is None:
-            near = [[cur, m] for m in free(cur) if m != nxt]
-            if not near:
-                return False
-            best = min(near, key=rank)
-        rest = self._plan(best[-1], u.goal, {(cur, nxt)}) or [best[-1]]
-        u.route = [*best, *rest[1:]]
-        self._grant(tick, u, best[1], "back_off", "deadlock", detail, waiting_for)
-        return True
-
-    # ------------------------------------------------------------------ deadlocks
-
-    def _break_deadlocks(self, tick: _Tick) -> None:
-        """Find wait-for cycles one at a time and make one unit of each give way."""
-        waiting = [u for u in self._sorted if u.waiting]
-        seen: dict[tuple[str, ...], float] = {}
-        if len(waiting) >= 2:
-            graph = nx.DiGraph()
-            for u in waiting:
-                graph.add_edges_from((u.uid, b) for b in u.waiting if self._units[b].waiting)
-            while graph.number_of_edges():
-                try:
-                    cycle = [a for a, _ in nx.find_cycle(graph)]
-                except nx.NetworkXNoCycle:
-                    break
-                members = tuple(sorted(cycle, key=unit_order))
-                retry_at = self._cycles.get(members)
-                if retry_at is None:
-                    self.deadlocks += 1
-                loser = None
-                if retry_at is None or tick.now >= retry_at:
-                    loser = self._give_way(tick, cycle, members)
-                    retry_at = tick.now + self.retry_s
-                if loser is None:
-                    seen[members] = retry_at
-                graph.remove_nodes_from([loser] if loser else cycle)
-        self._cycles = seen
-
-    def _give_way(self, tick: _Tick, cycle: list[str], members: tuple[str, ...]) -> str | None:
-        """Reroute or back off the cycle's loser; returns who gave way, None if nobody can."""
-        text = " -> ".join([*cycle, cycle[0]])
-        units = [self._units[uid] for uid in cycle if self._units[uid].edge is None]
-        units.sort(key=lambda u: u.order, reverse=True)  # larger id loses ties ...
-        units.sort(key=lambda u: u.priority)  # ... among the lowest priority (stable sort)
-        for u in units:
-            cur, nxt = u.route[0], u.route[1]
-            k = cycle.index(u.uid)
-            ahead = self._units[cycle[(k + 1) % len(cycle)]]  # the one u waits for
-            held = self.table.nodes_of(ahead.uid)
-            detail = f"deadlock {text}: rerouting around {', '.join(sorted(held))}"
-            if self._detour(tick, u, set(), held - {cur}, "deadlock", detail, members):
-                return u.uid
-            detail = f"deadlock {text}: rerouting around {cur} -> {nxt}"
-            if self._detour(tick, u, {(cur, nxt)}, {nxt}, "deadlock", detail, members):
-                return u.uid
-            behind = self._units[cycle[k - 1]]
-            detail = f"deadlock {text}: backing off from {cur}"
-            if self._back_off(tick, u, behind, detail, members):
-                return u.uid
-        if members not in self._cycles:
-            for uid in members:
-                self._say(
-                    tick,
-                    self._units[uid],
-                    "wait",
-                    "deadlock_unresolved",
-                    f"deadlock {text}: no unit can give way",
-                    waiting_for=members,
-                )
-        return None
-
-    # ------------------------------------------------------------------ blocked lanes
-
-    def _on_blocked(self, tick: _Tick, blocked: set[Lane]) -> None:
-        """Turn back, carry on or reroute every unit whose remaining route uses ``blocked``."""
-        for u in self._sorted:
-            if u.turn_back:
-                continue  # it plans when it has turned back
-            if u.edge is not None and lane_key(*u.edge) in blocked:
-                self._on_blocked_lane(tick, u)
-                continue
-            start = 1 if u.edge is not None else 0
-            rest = u.route[start:]
-            hits = [lane_key(a, b) for a, b in zip(rest, rest[1:], strict=False)]
-            hit = next((k for k in hits if k in blocked), None)
-            if hit is not None:
-                self._replan(tick, u, "lane_blocked", f"lane {hit[0]}-{hit[1]} is blocked")
-
-    def _on_blocked_lane(self, tick: _Tick, u: _Unit) -> None:
-        """A unit on a newly blocked lane: carry on if past the block, else turn back."""
-        assert u.edge is not None
-        tail, head = u.edge
-        edges = self.graph.graph.edges
-        if (tail, head) in edges:
-            length, (near, far) = edges[tail, head]["length"], edges[tail, head]["block_span"]
-        else:  # reversing a one-way lane: mirror the span of its only edge
-            length, (n0, f0) = edges[head, tail]["length"], edges[head, tail]["block_span"]
-            near, far = length - f0, length - n0
-        s = 0.0
-        if u.pos is not None:
-            (tx, ty), (hx, hy) = self._xy[tail], self._xy[head]
-            s = ((u.pos[0] - tx) * (hx - tx) + (u.pos[1] - ty) * (hy - ty)) / length
-        where = f"{near:.2f}-{far:.2f} m along {tail} -> {head}"
-        if s > far:
-            self._replan(tick, u, "lane_blocked", f"blocked {where}, behind the unit: carrying on")
-            return
-        u.turn_back = True
-        self.table.claim_reverse(u.uid, tail, head, tick.now)  # so followers may turn too
-        self._say(
-            tick,
-            u,
-            "reroute",
-            "lane_blocked",
-            f"blocked {where}, ahead of the unit at {s:.2f} m: turning back to {tail}",
-            edge=(head, tail),
-        )
-        self._turn_back(tick, u)
-
-    def _turn_back(self, tick: _Tick, u: _Unit) -> None:
-        """Reverse onto the lane's tail if free, else wait for it where the unit stands."""
-        assert u.edge is not None
-        tail, head = u.edge
-        holder = self.table.holder(tail)
-        if holder is not None and holder != u.uid:
-            if u.waiting != (holder,):
-                u.wait_since = tick.now if not u.waiting else u.wait_since
-                u.waiting = (holder,)
-                self._say(
-                    tick,
-                    u,
-                    "wait",
-                    "lane_blocked",
-                    f"stopped on blocked lane {tail}-{head}; {tail} is held by {holder}",
-                    edge=(head, tail),
-                    waiting_for=u.waiting,
-                )
-            return
-        self.table.reverse_lane(u.uid, tail, head, tick.now, self._back_time(u))
-        u.edge, u.tail_held, u.turn_back = (head, tail), False, False
-        u.waiting = ()
-        path = self._plan(tail, u.goal)
-        u.plan_version = self.graph.version
-        u.route = [head, *(path or [tail])]
-        self._say(
-            tick, u, "grant", "lane_blocked", f"reversing {head} -> {tail}", edge=(head, tail)
-        )
-
-    def _back_time(self, u: _Unit) -> float:
-        """Nominal time [s] to drive back to the edge's tail from the unit's position."""
-        assert u.edge is not None
-        tx, ty = self._xy[u.edge[0]]
-        x, y = u.pos if u.pos is not None else (tx, ty)
-        return math.hypot(x - tx, y - ty) / self.speed
 
     # ------------------------------------------------------------------ routing
 
@@ -919,14 +557,3 @@ class LaneCoordinator:
         if u is None:
             raise ValueError(f"unit_id {unit_id!r} is not known to the coordinator")
         return u
-
-
-def _segment_distance(
-    p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
-) -> float:
-    """[m] from point ``p`` to the segment a-b."""
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    length2 = dx * dx + dy * dy
-    t = 0.0 if length2 == 0 else ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / length2
-    t = min(1.0, max(0.0, t))
-    return math.hypot(p[0] - a[0] - t * dx, p[1] - a[1] - t * dy)
