@@ -32,6 +32,11 @@ BEAM_RETURN = 1
 BEAM_NO_RETURN = 2
 
 
+MAX_POSE_STD = 1e3
+"""Largest ``pose_std.xy`` [m] and ``pose_std.yaw`` [rad] accepted: a deviation beyond
+it says nothing about where the sensor was, and its square would overflow the fusion's
+pose weighting (1e200 did: one scan could then stop the whole server)."""
+
 class ScanError(ValueError):
     """A scan field is missing or invalid; ``field`` is its dotted path, ``value`` the value."""
 
@@ -132,8 +137,8 @@ class Scan:
         if data.get("pose_std") is not None:
             std_data = _object(data, "pose_std")
             pose_std = PoseStd(
-                xy=_finite(std_data, "xy", "pose_std.", minimum=0.0, default=0.0),
-                yaw=_finite(std_data, "yaw", "pose_std.", minimum=0.0, default=0.0),
+                xy=_finite(std_data, "xy", "pose_std.", 0.0, 0.0, MAX_POSE_STD),
+                yaw=_finite(std_data, "yaw", "pose_std.", 0.0, 0.0, MAX_POSE_STD),
             )
         angle_min = _finite(data, "angle_min")
         angle_increment = _finite(data, "angle_increment")
@@ -192,12 +197,15 @@ def _finite(
     prefix: str = "",
     minimum: float | None = None,
     default: float | None = None,
+    maximum: float | None = None,
 ) -> float:
     value = data.get(name, default)
     if not _is_number(value) or not math.isfinite(value):
         raise ScanError(prefix + name, value, "must be a finite number")
     if minimum is not None and value < minimum:
         raise ScanError(prefix + name, value, f"must be >= {minimum}")
+    if maximum is not None and value > maximum:
+        raise ScanError(prefix + name, value, f"must be <= {maximum:g}")
     return float(value)
 
 

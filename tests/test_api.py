@@ -76,6 +76,7 @@ BAD_SCANS = [
     ("backwards stamp", lambda b: b.update(stamp=0.5), 409, "stamp"),
     ("too many beams", lambda b: b.update(ranges=[1.0] * 20000), 422, "ranges"),
     ("ranges past one turn", lambda b: b.update(ranges=[1.0] * 700), 422, "ranges"),
+    ("poison pose_std", lambda b: b.update(pose_std={"xy": 1e200}), 422, "pose_std.xy"),
 ]
 
 

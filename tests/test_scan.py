@@ -82,6 +82,8 @@ def with_field(path: str, value):
         ("ranges", [1.0, "x", 2.0], "ranges[1]"),
         ("ranges", [1.0, True], "ranges[1]"),
         ("pose_std.xy", -0.1, "pose_std.xy"),
+        ("pose_std.xy", 1e200, "pose_std.xy"),  # its square overflowed the fusion
+        ("pose_std.yaw", 1e4, "pose_std.yaw"),
     ],
 )
 def test_each_bad_field_is_named_with_its_value(path, value, field):

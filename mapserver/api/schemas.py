@@ -25,8 +25,8 @@ class PoseIn(BaseModel):
 
 
 class PoseStdIn(BaseModel):
-    xy: float = Field(0.0, ge=0, description="[m] position standard deviation")
-    yaw: float = Field(0.0, ge=0, description="[rad] heading standard deviation")
+    xy: float = Field(0.0, ge=0, le=1e3, description="[m] position standard deviation")
+    yaw: float = Field(0.0, ge=0, le=1e3, description="[rad] heading standard deviation")
 
 
 class ScanIn(BaseModel):
