@@ -37,10 +37,11 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, StepResult
 from fleet.world import World
 from mapserver.client import Grid, MapClient
+from mapserver.queries import query_segments
 from planner.coordinator import LaneCoordinator
 from planner.freeze import TruthLanes, classify
 from planner.grid_search import GridPlanner
-from planner.lane_graph import LaneGraph
+from planner.lane_graph import LaneGraph, SegmentQuerier
 from planner.navigator import UnitNavigator
 from scenarios.agents import AgentState, TaskAgent
 from scenarios.clearing import ClearingTracker
@@ -66,7 +67,14 @@ class RunOptions:
     lanes split every ``segment_m`` [m] (None: junction to junction) so units can follow
     one another; ``reserve_ahead``: units are granted their next lanes before they
     reach the end of the one they drive (False: one lane at a time, on arrival);
-    ``dispatch``: which idle unit gets a released trip (``scenarios.dispatch.RULES``)."""
+    ``dispatch``: which idle unit gets a released trip (``scenarios.dispatch.RULES``);
+    ``lanes_from``: where the coordinator reads lane costs: "costmap", the costmap the
+    fleet last read (``CostmapSegments``), or "server", a ``POST /v1/query/segments``
+    per refresh."""
+
+    def __post_init__(self) -> None:
+        if self.lanes_from not in ("costmap", "server"):
+            raise ValueError(f"lanes_from must be 'costmap' or 'server', got {self.lanes_from!r}")
 
     map_read_s: float = 0.5
     lane_refresh_s: float = 1.0
@@ -76,6 +84,7 @@ class RunOptions:
     segment_m: float | None = 4.0
     reserve_ahead: bool = True
     dispatch: str = "nearest"
+    lanes_from: str = "costmap"
 
 
 @dataclass(frozen=True)
@@ -153,7 +162,8 @@ class Episode:
         )
         self.sim = FleetSim(world, units, seed=setup.seed, poster=self.poster)
         self.graph = graph = setup.build_lane_graph(segment_m=opts.segment_m)
-        self.coordinator = coordinator = _coordinator(graph, self.client, units, opts)
+        lanes = CostmapSegments(self) if opts.lanes_from == "costmap" else self.client
+        self.coordinator = coordinator = _coordinator(graph, lanes, units, opts)
         planner = GridPlanner(self.geometry)
         reroute = _rerouter(coordinator, graph)
         self.agents = {
@@ -225,7 +235,8 @@ class Episode:
         if self._map_reads.due(now):  # due at the first step
             self.costs = self.synced().costmap()
         if self._lane_reads.due(now):
-            self.synced()
+            if self.options.lanes_from == "server":
+                self.synced()
             self.coordinator.refresh(now)
         positions = {uid: _xy(u.drive.pose) for uid, u in self.sim.units.items()}
         self.coordinator.tick(now, positions)
@@ -353,11 +364,26 @@ class Episode:
         }
 
 
+class CostmapSegments:
+    """Lane readings (``query_segments``, CONTRACT 2.5) worked out on the costmap the
+    fleet last read over HTTP, as the server works them out on its own: no request per
+    refresh, and none of the map server's time taken from fusing scans."""
+
+    def __init__(self, episode: Episode) -> None:
+        self.episode = episode
+
+    def query_segments(self, segments):
+        """One reading per segment ``(x0, y0, x1, y1)`` [m], in order."""
+        return query_segments(self.episode.geometry, self.episode.costs.data, segments)
+
+
 def _xy(pose) -> tuple[float, float]:
     return (pose.x, pose.y)
 
 
-def _coordinator(graph: LaneGraph, client: MapClient, units, opts: RunOptions) -> LaneCoordinator:
+def _coordinator(
+    graph: LaneGraph, client: SegmentQuerier, units, opts: RunOptions
+) -> LaneCoordinator:
     """The run's lane coordinator: a node is left once a unit's body is clear of it, and
     with ``opts.reserve_ahead`` units ask for their next lanes a braking distance (plus
     ``RESERVE_MARGIN_M``) before the end of what they hold."""

@@ -50,7 +50,8 @@ class FleetMemberFilter:
         r = scan.ranges
         n = r.size
         ox, oy = scan.pose.x, scan.pose.y
-        beams: list[np.ndarray] = []
+        inc = scan.angle_increment
+        look = np.zeros(n, dtype=bool)  # the beams to check
         near: list[tuple[float, float, float]] = []
         for uid, (x, y, radius) in units.items():
             reach = radius + self.margin
@@ -58,21 +59,19 @@ class FleetMemberFilter:
             if uid == scan.unit_id or d - reach > scan.range_max:
                 continue
             near.append((x, y, reach))
-            if d <= reach or scan.angle_increment * n < 2 * math.asin(min(1.0, reach / d)):
-                beams.append(np.arange(n))  # around the sensor: look at every beam
+            if d <= reach or inc * n < 2 * math.asin(min(1.0, reach / d)):
+                look[:] = True  # around the sensor, or wider than the scan: every beam
                 continue
             half = math.asin(reach / d)
             centre = (math.atan2(y - oy, x - ox) - scan.pose.yaw - scan.angle_min) % math.tau
             for turn in (centre - math.tau, centre, centre + math.tau):  # across angle_min
-                first = math.floor((turn - half) / scan.angle_increment)
-                last = math.ceil((turn + half) / scan.angle_increment)
-                index = np.arange(first, last + 1)
-                if scan.angle_increment * n >= math.tau - 1e-9:  # a full turn wraps
-                    index %= n
-                beams.append(index[(index >= 0) & (index < n)])
-        if not beams:
+                first = max(math.floor((turn - half) / inc), 0)
+                last = min(math.ceil((turn + half) / inc), n - 1)
+                if first <= last:
+                    look[first : last + 1] = True
+        if not near:
             return scan
-        index = np.unique(np.concatenate(beams))
+        index = np.flatnonzero(look)
         angles = scan.pose.yaw + scan.angle_min + scan.angle_increment * index
         ranges = r[index]
         with np.errstate(invalid="ignore"):
