@@ -188,7 +188,7 @@ class DriveUnit:
         dv = lim.max_accel * dt
         target_speed, turn, final, aligned = 0.0, 0.0, False, False
         if self._path:
-            stop_at, to_stop = self._next_stop(x, y)
+            stop_at, to_stop, corner_at, to_corner, pass_speed = self._ahead_on_path(x, y)
             lookahead = lim.lookahead(self.speed)
             final = stop_at == 0 and to_stop <= lookahead
             if final:  # straight at the stop
@@ -203,7 +203,6 @@ class DriveUnit:
                     )
                     target_speed = min(lim.max_speed, braking)
             else:
-                corner_at, to_corner, corner_speed = self._next_corner(x, y, stop_at)
                 cx, cy = self._carrot(x, y, min(lookahead, to_corner), corner_at)
                 error = wrap_angle(math.atan2(cy - y, cx - x) - yaw)
                 standing = self.speed == 0.0
@@ -215,7 +214,7 @@ class DriveUnit:
                     target_speed = min(
                         lim.max_speed,
                         stopping_speed(to_stop, lim.max_accel, dt),
-                        math.sqrt(corner_speed**2 + 2 * lim.max_accel * to_corner),
+                        math.sqrt(pass_speed**2 + 2 * lim.max_accel * to_corner),
                         lim.max_turn_rate / abs(curvature) if curvature else math.inf,
                     )
                     speed = max(0.0, min(target_speed, self.speed + dv), self.speed - dv)
@@ -254,27 +253,19 @@ class DriveUnit:
         sharper than ``rotate_to_heading``."""
         return self._turn_at(i) > self.limits.rotate_to_heading
 
-    def _next_corner(self, x: float, y: float, stop_at: int) -> tuple[int, float, float]:
-        """The first corner (``CORNER_RAD``) up to waypoint ``stop_at``: its index, its
-        distance [m] along the path and the speed [m/s] the unit may pass it at."""
-        distance, px, py = 0.0, x, y
-        for i, (wx, wy) in enumerate(self._path[: stop_at + 1]):
-            distance += math.hypot(wx - px, wy - py)
-            turn = self._turn_at(i)
-            if i == stop_at:
-                return i, distance, 0.0
-            if turn > CORNER_RAD:
-                return i, distance, corner_speed(self.limits, turn)
-            px, py = wx, wy
-        raise AssertionError("stop_at is a waypoint of the path")
-
-    def _next_stop(self, x: float, y: float) -> tuple[int, float]:
-        """The index of the first stop waypoint and its distance [m] along the path."""
+    def _ahead_on_path(self, x: float, y: float) -> tuple[int, float, int, float, float]:
+        """One walk along the path from (x, y): the first stop waypoint (index, distance
+        [m]) and the first corner (``CORNER_RAD``) up to it (index, distance [m], the
+        speed [m/s] the unit may pass it at; the stop itself, at 0, when there is none)."""
+        corner: tuple[int, float, float] | None = None
         distance, px, py = 0.0, x, y
         for i, (wx, wy) in enumerate(self._path):
             distance += math.hypot(wx - px, wy - py)
-            if self._is_stop(i):
-                return i, distance
+            turn = self._turn_at(i)
+            if turn > self.limits.rotate_to_heading:  # a stop (the last one always is)
+                return (i, distance, *(corner or (i, distance, 0.0)))
+            if corner is None and turn > CORNER_RAD:
+                corner = (i, distance, corner_speed(self.limits, turn))
             px, py = wx, wy
         raise AssertionError("the last waypoint is always a stop")
 

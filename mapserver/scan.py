@@ -37,6 +37,7 @@ MAX_POSE_STD = 1e3
 it says nothing about where the sensor was, and its square would overflow the fusion's
 pose weighting (1e200 did: one scan could then stop the whole server)."""
 
+
 class ScanError(ValueError):
     """A scan field is missing or invalid; ``field`` is its dotted path, ``value`` the value."""
 

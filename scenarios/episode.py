@@ -98,11 +98,13 @@ class Motion:
 @dataclass
 class StepReport:
     """What one ``step`` did, for the observers: the sim's result, the trips handed out
-    (unit, trip, start node, position [m]), every agent's state and its drive's motion
-    before the new command, the paths newly sent to drives, the units blocked now."""
+    (unit, trip, start node, position [m]), every unit's position [m] at the step,
+    every agent's state and its drive's motion before the new command, the paths newly
+    sent to drives, the units blocked now."""
 
     now: float
     sim: StepResult
+    positions: dict[str, tuple[float, float]] = field(default_factory=dict)
     assigned: list[tuple[str, Task, str, tuple[float, float]]] = field(default_factory=list)
     states: dict[str, AgentState] = field(default_factory=dict)
     motion: dict[str, Motion] = field(default_factory=dict)
@@ -230,7 +232,8 @@ class Episode:
             raise RuntimeError("reset() the episode before step()")
         result = self.sim.step(self.setup.dt)
         now = result.time
-        report = StepReport(now, result)
+        positions = {uid: _xy(u.drive.pose) for uid, u in self.sim.units.items()}
+        report = StepReport(now, result, positions)
         self.record.collisions.extend(result.collisions)
         if self._map_reads.due(now):  # due at the first step
             self.costs = self.synced().costmap()
@@ -238,7 +241,6 @@ class Episode:
             if self.options.lanes_from == "server":
                 self.synced()
             self.coordinator.refresh(now)
-        positions = {uid: _xy(u.drive.pose) for uid, u in self.sim.units.items()}
         self.coordinator.tick(now, positions)
         self._start_breakdowns(now, positions)
         self._dispatch(now, positions, report)

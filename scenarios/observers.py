@@ -119,7 +119,7 @@ class FreezeWatch(_Observer):
                     state.blocked_reason,
                     state.blocking,
                     state.goal,
-                    _xy(episode.sim.unit(uid).pose),
+                    report.positions[uid],
                     state.lane_block,
                 )  # fmt: skip
             )
@@ -259,10 +259,6 @@ class ProgressReport(_Observer):
 
     def observe(self, episode: Episode) -> None:
         self.progress(episode.report.now, episode.setup.duration)
-
-
-def _xy(pose) -> tuple[float, float]:
-    return (pose.x, pose.y)
 
 
 def _scan_sample(scan) -> ScanSample:

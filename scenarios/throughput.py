@@ -74,12 +74,6 @@ class Drive(Protocol):
     turn_rate: float
 
 
-def run_s(length: float, limits: DriveLimits) -> float:
-    """[s] to drive ``length`` [m] straight from rest to rest at ``limits`` (trapezoidal
-    speed profile, triangular when too short to reach max_speed)."""
-    return segment_s(length, 0.0, 0.0, limits)
-
-
 def segment_s(length: float, v0: float, v1: float, limits: DriveLimits) -> float:
     """[s] to drive ``length`` [m] straight, entering at ``v0`` and leaving at ``v1``
     [m/s] (both reachable within it), as fast as max_speed and max_accel allow."""

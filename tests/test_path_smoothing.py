@@ -64,7 +64,6 @@ def test_a_smoothed_path_never_enters_an_inscribed_cell_nor_a_costlier_one(floor
     assert all(p in plan.path for p in path)  # a subsequence of the plan's points ...
     indices = [plan.path.index(p) for p in path]
     assert indices == sorted(indices)  # ... in its order
-    plan_cells = {geometry.world_to_cell(*p)[::-1] for p in plan.path}
     for k, (a, b) in enumerate(zip(path, path[1:], strict=False)):
         cells = touched_cells(a, b, geometry)
         assert all(costs[r, c] not in (INSCRIBED, LETHAL) for r, c in cells), (a, b)
@@ -74,7 +73,6 @@ def test_a_smoothed_path_never_enters_an_inscribed_cell_nor_a_costlier_one(floor
         assert worst(costs, cells) <= worst(costs, stretch), (a, b)
     length = sum(math.dist(a, b) for a, b in zip(path, path[1:], strict=False))
     assert length <= plan.length + 1e-9
-    assert plan_cells  # the plan had cells to compare with
 
 
 def test_a_staircase_across_an_open_floor_becomes_one_straight_leg():

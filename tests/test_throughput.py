@@ -15,7 +15,7 @@ from planner.lane_graph import LaneGraph
 from planner.navigator import Command
 from scenarios.agents import AgentState
 from scenarios.record import RunRecord, TripRecord
-from scenarios.throughput import ThroughputTracker, ideal_trip_s, run_s
+from scenarios.throughput import ThroughputTracker, ideal_trip_s, segment_s
 from scenarios.trips_json import write_trips
 
 LIMITS = DriveLimits(max_speed=1.5, max_accel=1.0, max_turn_rate=1.5)
@@ -36,10 +36,10 @@ def _line(length: float, waypoints: int = 0) -> LaneGraph:
 
 
 def test_a_run_is_trapezoidal_when_long_and_triangular_when_short():
-    assert run_s(20.0, LIMITS) == pytest.approx(20.0 / 1.5 + 1.5)  # 14.8333 s
-    assert run_s(1.0, LIMITS) == pytest.approx(2.0)  # 2 sqrt(1 / 1)
-    assert run_s(2.25, LIMITS) == pytest.approx(3.0)  # v^2 / a: both profiles meet
-    assert run_s(0.0, LIMITS) == 0.0
+    assert segment_s(20.0, 0, 0, LIMITS) == pytest.approx(20.0 / 1.5 + 1.5)  # 14.8333 s
+    assert segment_s(1.0, 0, 0, LIMITS) == pytest.approx(2.0)  # 2 sqrt(1 / 1)
+    assert segment_s(2.25, 0, 0, LIMITS) == pytest.approx(3.0)  # v^2 / a: profiles meet
+    assert segment_s(0.0, 0, 0, LIMITS) == 0.0
 
 
 def test_a_straight_lane_trip_out_and_back_is_two_runs_a_turn_back_and_two_dwells():
