@@ -307,13 +307,23 @@ class Journal:
         while True:
             rows = self._read(sql, [last, *params, page_size])
             for row_seq, body, ranges in rows:
-                scan = json.loads(body)
-                values = np.frombuffer(ranges, dtype="<f8").tolist()
-                scan["ranges"] = [None if math.isnan(r) else r for r in values]
-                yield row_seq, scan
+                yield row_seq, _decode_scan(body, ranges)
             if len(rows) < page_size:
                 return
             last = rows[-1][0]
+
+    def find_scan(self, unit_id: str, stamp: float) -> tuple[int, dict[str, Any]] | None:
+        """The newest journaled ``(seq, scan)`` of ``unit_id`` at ``stamp`` [s], or None
+        (a full table scan: for the rare retry the server has not seen itself)."""
+        rows = self._read(
+            "SELECT seq, body, ranges FROM scans WHERE unit_id = ? AND stamp = ? "
+            "ORDER BY seq DESC LIMIT 1",
+            (unit_id, float(stamp)),
+        )
+        if not rows:
+            return None
+        seq, body, ranges = rows[0]
+        return int(seq), _decode_scan(body, ranges)
 
     def last_seq(self) -> int:
         """The seq of the newest journaled scan (0 when there is none)."""
@@ -419,6 +429,14 @@ def open_journal_for_replay(path: str | os.PathLike[str]) -> Journal:
     if not target.is_file():
         raise JournalError(f"{path}: neither a journal file nor a data directory holding one")
     return Journal(target, readonly=True)
+
+
+def _decode_scan(body: str, ranges: bytes) -> dict[str, Any]:
+    """A journaled scan object from its stored header JSON and float64 ranges bytes."""
+    scan = json.loads(body)
+    values = np.frombuffer(ranges, dtype="<f8").tolist()
+    scan["ranges"] = [None if math.isnan(r) else r for r in values]
+    return scan
 
 
 def _unit_and_stamp(scan: Mapping[str, Any], index: int) -> tuple[str, float]:

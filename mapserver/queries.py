@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mapserver.belief import BeliefGrid, CellState
+from mapserver.belief import BeliefGrid, CellSample, CellState
 from mapserver.costvalues import INSCRIBED, UNKNOWN
 from mapserver.fusion_kernel import cell_of, clip_segment
 from mapserver.geometry import GridGeometry
@@ -50,19 +50,37 @@ class SegmentReport:
     first_blocked: tuple[float, float] | None
 
 
-def query_cells(
+@dataclass(frozen=True)
+class CellSamples:
+    """What cell reports need, gathered from the grids in one short step: the points
+    (N, 2) [m], which are on the map, and for those (in order) the belief's sample and
+    the costs."""
+
+    points: np.ndarray
+    inside: np.ndarray
+    sample: CellSample
+    costs: np.ndarray
+
+
+def sample_cells(
     belief: BeliefGrid, costs: np.ndarray, points: Sequence[Sequence[float]], at: float
-) -> list[CellReport]:
-    """Reports for ``points`` [(x, y) m] at stamp ``at`` [s] against ``costs`` (H, W) uint8."""
+) -> CellSamples:
+    """Gather ``points`` [(x, y) m] at stamp ``at`` [s] from ``belief`` and ``costs``
+    (H, W) uint8: O(points) array reads, so a caller may hold a lock around it only."""
     geometry = belief.geometry
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     cols, rows, inside = geometry.points_to_cells(pts)
     flat = rows[inside] * geometry.width + cols[inside]
-    sample = belief.sample(flat, at)
+    return CellSamples(pts, inside, belief.sample(flat, at), costs.ravel()[flat])
+
+
+def cell_reports(samples: CellSamples, at: float) -> list[CellReport]:
+    """One report per point of ``samples`` gathered at stamp ``at`` [s]."""
+    sample = samples.sample
     reports: list[CellReport] = []
     k = 0
-    for i, (x, y) in enumerate(pts.tolist()):
-        if not inside[i]:
+    for i, (x, y) in enumerate(samples.points.tolist()):
+        if not samples.inside[i]:
             reports.append(CellReport(x, y, "outside", None, None, None, None))
             continue
         t = float(sample.last_observed[k])
@@ -73,13 +91,20 @@ def query_cells(
                 y=y,
                 state=STATE_NAMES[state],
                 p_occ=None if state is CellState.UNKNOWN else float(sample.p_occ[k]),
-                cost=int(costs[rows[i], cols[i]]),
+                cost=int(samples.costs[k]),
                 last_observed=None if math.isnan(t) else t,
                 age=None if math.isnan(t) else at - t,
             )
         )
         k += 1
     return reports
+
+
+def query_cells(
+    belief: BeliefGrid, costs: np.ndarray, points: Sequence[Sequence[float]], at: float
+) -> list[CellReport]:
+    """Reports for ``points`` [(x, y) m] at stamp ``at`` [s] against ``costs`` (H, W) uint8."""
+    return cell_reports(sample_cells(belief, costs, points, at), at)
 
 
 def query_segments(

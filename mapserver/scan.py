@@ -15,6 +15,8 @@ body); every error names the field and the offending value.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -96,6 +98,19 @@ class Scan:
     def beam_classes(self) -> np.ndarray:
         """Per-beam class (BEAM_RETURN, BEAM_NO_RETURN or BEAM_INVALID) by REP 117."""
         return classify_ranges(self.ranges, self.range_min, self.range_max)
+
+    def digest(self) -> bytes:
+        """16 bytes that identify the scan's content (every field, ranges bit for bit
+        with every NaN alike): equal digests, equal scans. Tells a retry of an
+        acknowledged scan from another scan at the same stamp."""
+        header = json.dumps(self.to_dict(with_ranges=False), sort_keys=True).encode()
+        ranges = np.where(np.isnan(self.ranges), np.nan, self.ranges).astype("<f8")
+        return hashlib.blake2b(header + b"\0" + ranges.tobytes(), digest_size=16).digest()
+
+    def journal_record(self) -> dict[str, Any]:
+        """The scan as it is journaled: its validated fields only (unknown fields of the
+        posted body are not kept), ``ranges`` as the float64 array."""
+        return {**self.to_dict(with_ranges=False), "ranges": self.ranges}
 
     def to_dict(self, with_ranges: bool = True) -> dict[str, Any]:
         """The CONTRACT 2.1 JSON object (NaN ranges as null, no-return as Infinity);
@@ -182,7 +197,14 @@ def classify_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> n
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    """A JSON number that fits a float64 (booleans are not numbers; an integer such as
+    10**400, which JSON allows, is beyond float range and refused like infinity)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    return isinstance(value, float) or abs(value) <= _LARGEST_FLOAT_INT
+
+
+_LARGEST_FLOAT_INT = int(np.finfo(np.float64).max)
 
 
 def _object(data: Mapping, name: str) -> Mapping:
@@ -219,11 +241,16 @@ def _ranges(value: Any, max_beams: int) -> np.ndarray:
         raise ScanError("ranges", f"<{len(value)} beams>", f"must hold at most {max_beams} beams")
     if isinstance(value, np.ndarray):
         return value.astype(np.float64, copy=True)
-    if not set(map(type, value)) <= _RANGE_TYPES:
+    types = set(map(type, value))
+    if not types <= _RANGE_TYPES or (int in types and not all(map(_is_range, value))):
         for i, r in enumerate(value):
-            if type(r) not in _RANGE_TYPES:
-                raise ScanError(f"ranges[{i}]", r, "must be a number or null")
+            if not _is_range(r):
+                raise ScanError(f"ranges[{i}]", r, "must be a number (within float range) or null")
     return np.array(value, dtype=np.float64)  # None becomes NaN: invalid, dropped
+
+
+def _is_range(value: Any) -> bool:
+    return value is None or (type(value) in _RANGE_TYPES and _is_number(value))
 
 
 _RANGE_TYPES = {float, int, type(None)}

@@ -36,10 +36,17 @@ import numpy as np
 
 from mapserver.belief import BeliefGrid
 from mapserver.costmap import LayeredCostmap, Patch
+from mapserver.fleet_clock import FleetClock
 from mapserver.journal import Journal, journal_path
 from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.occupancy import occupancy_percent
-from mapserver.queries import CellReport, SegmentReport, query_cells, query_segments
+from mapserver.queries import (
+    CellReport,
+    SegmentReport,
+    cell_reports,
+    query_segments,
+    sample_cells,
+)
 from mapserver.scan import Scan
 from mapserver.settings import Settings
 from planner.grid_search import GridPlanner, PlanResult
@@ -84,8 +91,19 @@ class GridRead:
 @dataclass
 class _Submission:
     scans: list[Scan]
-    bodies: list[dict[str, Any]]
     future: Future
+
+
+@dataclass(frozen=True)
+class _Latest:
+    """A unit's newest scan: its stamp [s], content digest (None: not known yet, read
+    from the journal when needed) and ack (None while it waits in the group at
+    ``slot``, its index among the group's new scans)."""
+
+    stamp: float
+    digest: bytes | None
+    ack: Ack | None = None
+    slot: int | None = None
 
 
 class MapService:
@@ -105,6 +123,7 @@ class MapService:
         )
         self.belief = settings.belief_grid(self.geometry)
         self.version = 0
+        self.clock = FleetClock(settings.clock.max_lead_s, settings.clock.window_scans)
         self._restore()
         static = settings.static_map()
         layers = [StaticLayer(static)] if static is not None else []
@@ -117,7 +136,9 @@ class MapService:
             stamp=self.belief.stamp,
             version=self.version,
         )
-        self._unit_stamps = self.journal.unit_stamps()
+        self._latest = {
+            unit: _Latest(stamp, None) for unit, stamp in self.journal.unit_stamps().items()
+        }
         self._lock = threading.Lock()
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
@@ -141,7 +162,15 @@ class MapService:
             self.belief.scans_fused = int(arrays["scans_fused"])
             self.version = after = snapshot.seq
         for seq, body in self.journal.scans_after(after):
-            self.belief.fuse(Scan.from_dict(body, max_beams=self.settings.limits.max_beams))
+            scan = Scan.from_dict(body, max_beams=self.settings.limits.max_beams)
+            lead = self.clock.check(scan.stamp)
+            if lead is not None:  # journaled before the clock rule: not part of the map
+                logger.warning(
+                    "journal seq %d (unit %s): stamp %s", seq, scan.unit_id, lead.describe()
+                )
+                continue
+            self.clock.observe(scan.unit_id, scan.stamp)
+            self.belief.fuse(scan)
             self.version = seq
 
     def close(self) -> None:
@@ -157,19 +186,19 @@ class MapService:
         self._lock_handle.close()
 
     # -------------------------------------------------------------------- writes
-    def submit(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> Future:
-        """Queue validated scans (all or none) with the JSON objects they were parsed from;
-        the future gives ``list[Ack]`` or raises IngestError."""
+    def submit(self, scans: list[Scan]) -> Future:
+        """Queue validated scans (all or none); the future gives ``list[Ack]`` or raises
+        IngestError. Only the scans' validated fields are journaled."""
         future: Future = Future()
         if self._closed:
             future.set_exception(IngestError(503, "the map server is shutting down"))
         else:
-            self._queue.put(_Submission(scans, bodies, future))
+            self._queue.put(_Submission(scans, future))
         return future
 
-    def ingest(self, scans: list[Scan], bodies: list[dict[str, Any]]) -> list[Ack]:
+    def ingest(self, scans: list[Scan]) -> list[Ack]:
         """Submit and wait (for callers without an event loop)."""
-        return self.submit(scans, bodies).result()
+        return self.submit(scans).result()
 
     def _ingest_loop(self) -> None:
         while True:
@@ -201,60 +230,119 @@ class MapService:
                 return
 
     def _apply_group(self, group: list[_Submission]) -> None:
-        accepted: list[_Submission] = []
+        """State checks per submission, one journal transaction, fusion, one costmap
+        refresh; then every submission's future is answered."""
+        accepted: list[tuple[_Submission, list[_Latest]]] = []
+        new: list[Scan] = []  # the group's scans to journal, in order
         with self._lock:
-            stamps = dict(self._unit_stamps)
+            latest = dict(self._latest)
+            clock_before = self.clock.state()
             for sub in group:
-                problem = self._check(sub.scans, stamps)
-                if problem is not None:
-                    sub.future.set_exception(problem)
+                outcome = self._check(sub.scans, latest, new)
+                if isinstance(outcome, IngestError):
+                    sub.future.set_exception(outcome)
                     continue
-                for scan in sub.scans:
-                    stamps[scan.unit_id] = scan.stamp
-                accepted.append(sub)
-            if not accepted:
+                accepted.append((sub, outcome))
+            if not new:
+                self._answer(accepted, [])
                 return
             try:
-                seqs = self.journal.append([b for sub in accepted for b in sub.bodies])
+                seqs = self.journal.append([scan.journal_record() for scan in new])
             except Exception as exc:  # disk full, I/O error: nothing was fused
-                for sub in accepted:
+                self.clock.restore(clock_before)
+                for sub, _ in accepted:
                     sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
                 return
             t0 = time.perf_counter()
-            results = self.belief.fuse_many([scan for sub in accepted for scan in sub.scans])
-            boxes = [r.box for r in results]
+            results = self.belief.fuse_many(new)
             self.version = seqs[-1]
-            self.costmap.update(self.belief.stamp, boxes, version=self.version)
+            self.costmap.update(self.belief.stamp, [r.box for r in results], version=self.version)
             self.fusion_seconds += time.perf_counter() - t0
-            self._unit_stamps = stamps
             self._since_snapshot += len(seqs)
-        k = 0
-        for sub in accepted:
-            n = len(sub.scans)
-            sub.future.set_result([Ack(seq, self.version) for seq in seqs[k : k + n]])
-            k += n
+            acks = [Ack(seq, self.version) for seq in seqs]
+            for unit, entry in latest.items():
+                if entry.slot is not None:
+                    latest[unit] = _Latest(entry.stamp, entry.digest, acks[entry.slot])
+            self._latest = latest
+        self._answer(accepted, acks)
 
-    def _check(self, scans: list[Scan], stamps: dict[str, float]) -> IngestError | None:
-        """State checks of a submission against the current unit stamps (or None)."""
-        local = dict()
+    @staticmethod
+    def _answer(accepted: list[tuple[_Submission, list[_Latest]]], acks: list[Ack]) -> None:
+        for sub, entries in accepted:
+            sub.future.set_result([e.ack if e.ack is not None else acks[e.slot] for e in entries])
+
+    def _check(
+        self, scans: list[Scan], latest: dict[str, _Latest], new: list[Scan]
+    ) -> IngestError | list[_Latest]:
+        """Check a submission against the units' latest scans and the fleet's clock
+        (lock held). Accepted: ``latest``, ``new`` and the clock are updated and the
+        entry answering each scan is returned (a retry of a scan already taken answers
+        with that scan's ack). Refused: the IngestError, and nothing changed."""
+        clock_state, latest_before, new_before = self.clock.state(), dict(latest), len(new)
+        entries: list[_Latest] = []
         for i, scan in enumerate(scans):
             where = f"scans[{i}]." if len(scans) > 1 else ""
-            last = local.get(scan.unit_id, stamps.get(scan.unit_id, -math.inf))
-            if scan.stamp < last:
+            outcome = self._check_one(scan, where, latest.get(scan.unit_id))
+            if isinstance(outcome, _Latest):  # a retry
+                latest[scan.unit_id] = outcome
+                entries.append(outcome)
+                continue
+            if outcome is not None:
+                self.clock.restore(clock_state)
+                latest.clear()
+                latest.update(latest_before)
+                del new[new_before:]
+                return outcome
+            entry = _Latest(scan.stamp, scan.digest(), slot=len(new))
+            latest[scan.unit_id] = entry
+            new.append(scan)
+            self.clock.observe(scan.unit_id, scan.stamp)
+            entries.append(entry)
+        return entries
+
+    def _check_one(
+        self, scan: Scan, where: str, last: _Latest | None
+    ) -> IngestError | _Latest | None:
+        """One scan: None (new, acceptable), its unit's latest entry (a retry of that
+        very scan) or why it is refused."""
+        if last is not None and scan.stamp <= last.stamp:
+            repeated = self._repeat_of(scan, last) if scan.stamp == last.stamp else None
+            if repeated is not None:
+                return repeated
+            if scan.stamp == last.stamp:
                 return IngestError(
                     409,
-                    f"{where}stamp: unit {scan.unit_id!r} already sent stamp {last}, "
-                    f"stamps must not go backwards, got {scan.stamp}",
+                    f"{where}stamp: unit {scan.unit_id!r} already sent another scan at "
+                    f"stamp {scan.stamp} (a retry must repeat the scan exactly)",
                 )
-            local[scan.unit_id] = scan.stamp
-            if not self.geometry.contains_point(scan.pose.x, scan.pose.y):
-                xmin, ymin, xmax, ymax = self.geometry.bounds
-                return IngestError(
-                    422,
-                    f"{where}pose: the sensor must be on the map [{xmin}, {xmax}) x "
-                    f"[{ymin}, {ymax}), got ({scan.pose.x}, {scan.pose.y})",
-                )
+            return IngestError(
+                409,
+                f"{where}stamp: unit {scan.unit_id!r} already sent stamp {last.stamp}, "
+                f"stamps must not go backwards, got {scan.stamp}",
+            )
+        if not self.geometry.contains_point(scan.pose.x, scan.pose.y):
+            xmin, ymin, xmax, ymax = self.geometry.bounds
+            return IngestError(
+                422,
+                f"{where}pose: the sensor must be on the map [{xmin}, {xmax}) x "
+                f"[{ymin}, {ymax}), got ({scan.pose.x}, {scan.pose.y})",
+            )
+        lead = self.clock.check(scan.stamp)
+        if lead is not None:
+            return IngestError(422, f"{where}stamp: {scan.stamp} {lead.describe()}")
         return None
+
+    def _repeat_of(self, scan: Scan, last: _Latest) -> _Latest | None:
+        """``last`` (with its ack) when ``scan`` is that very scan again, else None. A
+        digest this server has not seen (after a restart) is read from the journal."""
+        if last.digest is None:
+            found = self.journal.find_scan(scan.unit_id, scan.stamp)
+            if found is None:
+                return None
+            seq, body = found
+            stored = Scan.from_dict(body, max_beams=self.settings.limits.max_beams)
+            last = _Latest(last.stamp, stored.digest(), Ack(seq, seq))
+        return last if scan.digest() == last.digest else None
 
     def _snapshot_if_due(self) -> None:
         """Copy the belief and save it on a background thread, at most one at a time."""
@@ -357,16 +445,26 @@ class MapService:
             return self.version, self.costmap.stamp, self.costmap.patches_since(version)
 
     def cells(self, points: list[list[float]], at: float | None = None) -> list[CellReport]:
+        """CONTRACT 2.4 reports at ``at`` [s] (default: the map's stamp). The lock is
+        held only to gather the points' values (or, at another stamp, to copy the belief):
+        reports are made, and costmaps at other stamps built, outside it."""
         with self._lock:
             when = self.belief.stamp if at is None else at
-            costs = self.costmap.costs
-            if at is not None and at != self.costmap.stamp:
-                costs = self._build(self._frozen_layers(), at)
-            return query_cells(self.belief, costs, points, when)
+            current = at is None or at == self.costmap.stamp
+            if current:
+                samples = sample_cells(self.belief, self.costmap.costs, points, when)
+            else:
+                belief = self._belief_copy()
+                layers = self._frozen_layers(belief)
+        if not current:
+            samples = sample_cells(belief, self._build(layers, at), points, when)
+        return cell_reports(samples, when)
 
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
+        """CONTRACT 2.5 reports on the current costmap, copied under the lock."""
         with self._lock:
-            return query_segments(self.geometry, self.costmap.costs, segments)
+            costs = self.costmap.costs.copy()
+        return query_segments(self.geometry, costs, segments)
 
     def plan(
         self,
@@ -394,9 +492,10 @@ class MapService:
         copy.load_state(self.belief.raw_log_odds(), self.belief.last_observed(), self.belief.stamp)
         return copy
 
-    def _frozen_layers(self) -> list:
-        """Fresh layers over a copy of the belief, for reads at another stamp (lock held)."""
-        belief = self._belief_copy()
+    def _frozen_layers(self, belief: BeliefGrid | None = None) -> list:
+        """Fresh layers over ``belief`` (default: a copy of the map's), for reads at
+        another stamp (lock held)."""
+        belief = belief or self._belief_copy()
         return [
             ObstacleLayer(belief) if isinstance(layer, ObstacleLayer) else layer.fresh()
             for layer in self.costmap.layers

@@ -56,6 +56,7 @@ from pydantic_settings import (
 )
 
 from mapserver.belief import BeliefGrid
+from mapserver.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCANS
 from mapserver.geometry import GridGeometry
 from mapserver.inflation import InflationParams
 from mapserver.mapfiles import MapFileError, RosMap, read_ros_map
@@ -207,6 +208,35 @@ class LimitsSettings(_Section):
     max_batch: int = Field(default=256, gt=0)
 
 
+class ClockSettings(_Section):
+    """The fleet's clock (``mapserver.fleet_clock``): no single unit decides the map's time.
+
+    max_lead_s: [s] how far a scan's stamp may lead the server's wall clock and the
+        median of the fleet's latest stamps; a scan leading further is refused (422).
+    window_scans: units heard from among this many latest scans make up the fleet.
+    """
+
+    max_lead_s: float = Field(default=DEFAULT_MAX_LEAD_S, gt=0, allow_inf_nan=False)
+    window_scans: int = Field(default=DEFAULT_WINDOW_SCANS, gt=0)
+
+
+class ReadSettings(_Section):
+    """Heavy reads (cell and segment queries, plans) run on worker threads beside the
+    ingest, never holding the map's lock while they compute; they are admitted so that
+    they cannot starve scan ingest or ``/healthz``.
+
+    max_concurrent_queries: cell and segment queries computing at once.
+    max_queued_queries: queries waiting for a turn; beyond it a query gets 429.
+    max_queued_plans: plans waiting for the planner (one plans at a time); beyond, 429.
+    retry_after_s: [s] the ``Retry-After`` a 429 carries.
+    """
+
+    max_concurrent_queries: int = Field(default=2, gt=0)
+    max_queued_queries: int = Field(default=16, ge=0)
+    max_queued_plans: int = Field(default=8, ge=0)
+    retry_after_s: int = Field(default=1, gt=0)
+
+
 class JournalSettings(_Section):
     """Durability and history.
 
@@ -244,7 +274,7 @@ class Settings(BaseSettings):
     max_clearing_range: [m] cap on how far a no-return beam clears (None: the scan's
         own range_max).
     tokens: bearer tokens; none means an open server on loopback only.
-    limits, journal: see their sections.
+    limits, clock, reads, journal: see their sections.
     """
 
     model_config = SettingsConfigDict(
@@ -266,6 +296,8 @@ class Settings(BaseSettings):
     max_clearing_range: float | None = None
     tokens: list[TokenSettings] = []
     limits: LimitsSettings = LimitsSettings()
+    clock: ClockSettings = ClockSettings()
+    reads: ReadSettings = ReadSettings()
     journal: JournalSettings = JournalSettings()
 
     _static_map: RosMap | None = PrivateAttr(default=None)

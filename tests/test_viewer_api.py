@@ -31,16 +31,16 @@ def ages_raw(client, **params):
 def test_ages_are_float32_seconds_since_last_observed_with_nan_where_never_observed(client):
     for stamp in (1.0, 2.0, 3.0):
         client.post("/v1/scans", json=scan_body(stamp=stamp))
-    client.post("/v1/scans", json=scan_body(stamp=10.0, unit="u2", x=15.0, y=8.0))
+    client.post("/v1/scans", json=scan_body(stamp=8.0, unit="u2", x=15.0, y=8.0))
     reply, ages = ages_raw(client)
     h = reply.headers
     assert (h["X-Map-Width"], h["X-Map-Height"], h["X-Map-Resolution"]) == ("200", "100", "0.1")
-    assert (h["X-Map-Version"], h["X-Map-Stamp"]) == ("4", "10.0")
-    assert ages[LETHAL_CELL] == 7.0  # last seen at 3.0, the map's stamp is 10.0
+    assert (h["X-Map-Version"], h["X-Map-Stamp"]) == ("4", "8.0")
+    assert ages[LETHAL_CELL] == 5.0  # last seen at 3.0, the map's stamp is 8.0
     assert math.isnan(ages[NEVER_SEEN])
-    assert ages[80, 150] == 0.0  # seen by the scan at 10.0 from (15, 8)
+    assert ages[80, 150] == 0.0  # seen by the scan at 8.0 from (15, 8)
     cells = client.post("/v1/query/cells", json={"points": [[8.05, 5.05], [15.05, 2.05]]})
-    assert [c["age"] for c in cells.json()["cells"]] == [7.0, None]
+    assert [c["age"] for c in cells.json()["cells"]] == [5.0, None]
 
 
 def test_ages_at_a_later_stamp_and_as_json_with_null_for_never_observed(client):

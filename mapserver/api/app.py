@@ -27,8 +27,9 @@ from mapserver.api import (
     routes_units,
     routes_viewer,
 )
+from mapserver.api.admission import Admission
 from mapserver.api.metrics import ServerMetrics
-from mapserver.api.schemas import ScanBatchIn, ScanIn, UnitsIn
+from mapserver.api.schemas import CellsIn, PlanIn, ScanBatchIn, ScanIn, SegmentsIn, UnitsIn
 from mapserver.api.unit_board import UnitBoard
 from mapserver.service import MapService
 from mapserver.settings import Settings
@@ -54,6 +55,11 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.metrics = ServerMetrics(service)
     app.state.token_roles = settings.token_roles()
     app.state.units = UnitBoard()
+    reads = settings.reads
+    app.state.query_admission = Admission(
+        "query", reads.max_concurrent_queries, reads.max_queued_queries, reads.retry_after_s
+    )
+    app.state.plan_admission = Admission("plan", 1, reads.max_queued_plans, reads.retry_after_s)
     routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
     for module in (*routers, routes_viewer):
         app.include_router(module.router)
@@ -65,14 +71,14 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
 
 
 def _add_body_schemas(app: FastAPI) -> None:
-    """Publish the body models of the routes that read raw JSON (scans, units)."""
+    """Publish the body models of the routes that read raw JSON (all POST routes)."""
     build = app.openapi
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
             schema = build()
             components = schema.setdefault("components", {}).setdefault("schemas", {})
-            for model in (ScanIn, ScanBatchIn, UnitsIn):
+            for model in (ScanIn, ScanBatchIn, UnitsIn, CellsIn, SegmentsIn, PlanIn):
                 model_schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
                 components.update(model_schema.pop("$defs", {}))
                 components[model.__name__] = model_schema

@@ -11,8 +11,9 @@ router = APIRouter(tags=["operations"])
 
 
 @router.get("/healthz", response_model=Health)
-def healthz(request: Request) -> Health:
-    """200 once the map is restored and the server accepts scans."""
+async def healthz(request: Request) -> Health:
+    """200 once the map is restored and the server accepts scans. Answered on the event
+    loop itself (no worker thread), so busy readers cannot hold it up."""
     return Health(status="ok", version=request.app.state.service.version)
 
 

@@ -25,11 +25,11 @@ def _parse(item: Any, prefix: str, max_beams: int) -> Scan:
         raise HTTPException(422, f"{prefix}{exc}") from None
 
 
-async def _submit(request: Request, scans: list[Scan], bodies: list[dict]) -> list[Any]:
+async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
     service: MapService = request.app.state.service
     metrics = request.app.state.metrics
     try:
-        acks = await asyncio.wrap_future(service.submit(scans, bodies))
+        acks = await asyncio.wrap_future(service.submit(scans))
     except IngestError as exc:
         metrics.scans_rejected.labels(str(exc.status)).inc()
         raise HTTPException(exc.status, exc.detail) from None
@@ -48,7 +48,7 @@ async def _submit(request: Request, scans: list[Scan], bodies: list[dict]) -> li
 async def post_scan(request: Request) -> ScanAck:
     body = await read_json(request)
     scan = _parse(body, "", request.app.state.settings.limits.max_beams)
-    (ack,) = await _submit(request, [scan], [body])
+    (ack,) = await _submit(request, [scan])
     return ScanAck(seq=ack.seq, map_version=ack.map_version)
 
 
@@ -69,5 +69,5 @@ async def post_scans(request: Request) -> ScanBatchAck:
     if len(items) > limits.max_batch:
         raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
     scans = [_parse(item, f"scans[{i}].", limits.max_beams) for i, item in enumerate(items)]
-    acks = await _submit(request, scans, items)
+    acks = await _submit(request, scans)
     return ScanBatchAck(acks=[ScanAck(seq=a.seq, map_version=a.map_version) for a in acks])
