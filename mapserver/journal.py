@@ -76,6 +76,7 @@ import sqlite3
 import struct
 import threading
 import time
+import zipfile
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -599,7 +600,7 @@ class Journal:
                 )
         try:
             arrays = decode_arrays(blob)
-        except (ValueError, OSError, EOFError, KeyError, TypeError) as exc:
+        except (ValueError, OSError, EOFError, KeyError, TypeError, zipfile.BadZipFile) as exc:
             raise SnapshotError(
                 f"{self.path}: snapshot at seq {seq} does not decode: {exc}"
             ) from None
