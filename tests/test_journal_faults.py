@@ -8,12 +8,13 @@ import logging
 import sqlite3
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from prometheus_client import generate_latest
-from server_helpers import scan_body, small_settings
+from server_helpers import ServerProcess, scan_body, small_settings
 
 from mapserver import journal as journal_module
 from mapserver.api.metrics import ServerMetrics
@@ -450,3 +451,33 @@ def test_drop_quarantines_a_units_later_scans_and_rebuilds_without_them(tmp_path
         main(["journal", "drop", str(data), "--unit", "u1", "--after", "nan"])
     assert exited.value.code == 2
     assert "--after: expected a finite stamp in seconds, got 'nan'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------- a real server
+def test_a_real_server_restarts_past_a_damaged_record_and_reports_it(tmp_path) -> None:
+    data = tmp_path / "data"
+    server = ServerProcess(data, grid=(200, 100))
+    try:
+        for body in bodies():
+            httpx.post(server.url + "/v1/scans", json=body, timeout=10).raise_for_status()
+    finally:
+        server.stop()
+    flip_byte(data, 6, "ranges", 16)
+    server = ServerProcess(data, grid=(200, 100))
+    try:
+        metrics = httpx.get(server.url + "/metrics", timeout=10).text
+        assert "fleetmap_journal_quarantined 1.0" in metrics
+        assert "fleetmap_snapshot_failures 0.0" in metrics
+        assert httpx.get(server.url + "/v1/map/meta", timeout=10).json()["version"] == N_SCANS
+    finally:
+        server.stop()
+
+
+def test_serve_on_a_damaged_journal_is_a_clear_error(tmp_path, capsys) -> None:
+    data = tmp_path / "data"
+    serve_and_close(data, bodies())
+    journal_path(data).write_bytes(journal_path(data).read_bytes()[:6000])
+    config = tmp_path / "server.yaml"
+    config.write_text("grid: {width: 200, height: 100, resolution: 0.1}\n")
+    assert main(["serve", "--config", str(config), "--data-dir", str(data)]) == 2
+    assert "journal salvage" in capsys.readouterr().err
