@@ -57,33 +57,27 @@ def add_journal_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``journal check``, ``journal salvage`` and ``journal drop``."""
     parser = subparsers.add_parser("journal", help="check, salvage or mend a server journal")
     sub = parser.add_subparsers(dest="journal_command", required=True)
-    check = sub.add_parser(
-        "check",
-        help="read-only integrity check of a data dir's journal",
-        description="Exit 0: all intact; 1: something is damaged; 2: usage error.",
-    )
-    check.add_argument("data_dir", type=Path, help="the server's data dir (server stopped)")
-    check.add_argument("--json", action="store_true", help="print the findings as JSON")
-    check.set_defaults(handler=_command(run_check))
-    salvage = sub.add_parser(
-        "salvage",
-        help="copy every intact record into a fresh journal",
-        description="Reads a damaged or truncated journal row by row; writes NEW_DIR.",
-    )
-    salvage.add_argument("data_dir", type=Path, help="the damaged data dir (server stopped)")
+    commands = (
+        ("check", run_check, "read-only integrity check of a data dir's journal",
+         "Exit 0: all intact; 1: something is damaged; 2: usage error."),
+        ("salvage", run_salvage, "copy every intact record into a fresh journal",
+         "Reads a damaged or truncated journal row by row; writes NEW_DIR."),
+        ("drop", run_drop, "quarantine one unit's scans after a stamp",
+         "Moves the unit's scans with stamp > STAMP to quarantine, resets the unit's "
+         "stamp bound and deletes the snapshots (the next start-up replays)."),
+    )  # fmt: skip
+    parsers = {}
+    for name, run, help_text, description in commands:
+        parsers[name] = sub.add_parser(name, help=help_text, description=description)
+        parsers[name].add_argument("data_dir", type=Path, help="the data dir (server stopped)")
+        parsers[name].set_defaults(handler=_command(run))
+    parsers["check"].add_argument("--json", action="store_true", help="findings as JSON")
+    salvage = parsers["salvage"]
     salvage.add_argument("--out", type=Path, help="new data dir (default DATA_DIR-salvaged)")
     salvage.add_argument("--json", action="store_true", help="print the figures as JSON")
-    salvage.set_defaults(handler=_command(run_salvage))
-    drop = sub.add_parser(
-        "drop",
-        help="quarantine one unit's scans after a stamp (server stopped)",
-        description="Moves the unit's scans with stamp > STAMP to quarantine, resets the "
-        "unit's stamp bound and deletes the snapshots (the next start-up replays).",
-    )
-    drop.add_argument("data_dir", type=Path, help="the server's data dir (server stopped)")
+    drop = parsers["drop"]
     drop.add_argument("--unit", required=True, help="unit_id whose scans to drop")
     drop.add_argument("--after", type=_finite, required=True, help="[s] drop stamps > this")
-    drop.set_defaults(handler=_command(run_drop))
 
 
 def _finite(text: str) -> float:

@@ -68,6 +68,18 @@ def assert_same_belief(service: MapService, expected: tuple[np.ndarray, np.ndarr
     assert service.belief.last_observed().tobytes() == expected[1].tobytes()
 
 
+def assert_restart_rebuilds(data: Path, scans: list[dict]) -> MapService:
+    """A MapService started on ``data`` holds the belief fused from ``scans``, byte for
+    byte; returns it closed (its counters stay readable)."""
+    service = MapService(small_settings(data))
+    try:
+        assert_same_belief(service, fused(data, scans))
+        assert service.belief.scans_fused == len(scans)
+    finally:
+        service.close()
+    return service
+
+
 def sql(data: Path, statement: str, params: tuple = ()) -> list[tuple]:
     """Run one statement on the journal with plain sqlite3 (a fault from outside)."""
     conn = sqlite3.connect(journal_path(data))
@@ -239,12 +251,8 @@ def test_restart_quarantines_exactly_the_damaged_record(tmp_path, caplog, damage
     stored = sql(data, f"SELECT {column} FROM quarantine")[0][0]
     assert seq == 5 and reason in why
     assert (stored if isinstance(stored, bytes) else stored.encode()) == original
-    service = MapService(small_settings(data))  # a second restart finds nothing new
-    try:
-        assert service.journal.quarantined == 1
-        assert_same_belief(service, fused(data, scans[:4] + scans[5:]))
-    finally:
-        service.close()
+    again = assert_restart_rebuilds(data, scans[:4] + scans[5:])  # nothing new is found
+    assert again.journal.quarantined == 1
 
 
 def test_replay_skips_a_damaged_record_and_changes_nothing(tmp_path, capsys) -> None:
@@ -298,12 +306,7 @@ def test_a_bad_newest_snapshot_falls_back_to_the_older_one(tmp_path, caplog, dam
     serve_and_close(data, scans, snapshot_at=(4, 8))
     SNAPSHOT_DAMAGES[damage](data, 8)
     with caplog.at_level(logging.ERROR, logger="mapserver.service"):
-        service = MapService(small_settings(data))
-    try:
-        assert_same_belief(service, fused(data, scans))
-        assert service.belief.scans_fused == N_SCANS and service.version == N_SCANS
-    finally:
-        service.close()
+        assert assert_restart_rebuilds(data, scans).version == N_SCANS
     messages = " ".join(r.getMessage() for r in caplog.records)
     assert "snapshot at seq 8 is unusable" in messages
     assert "whole journal" not in messages
@@ -316,12 +319,7 @@ def test_with_every_snapshot_bad_start_up_replays_the_whole_journal(tmp_path, ca
     _flip_snapshot(data, 4)
     SNAPSHOT_DAMAGES["wrong shape"](data, 8)
     with caplog.at_level(logging.ERROR, logger="mapserver.service"):
-        service = MapService(small_settings(data))
-    try:
-        assert_same_belief(service, fused(data, scans))
-        assert service.belief.scans_fused == N_SCANS
-    finally:
-        service.close()
+        assert_restart_rebuilds(data, scans)
     assert "replaying the whole journal" in caplog.text
 
 
@@ -401,11 +399,7 @@ def test_salvage_recovers_the_intact_prefix_of_a_truncated_journal(tmp_path, cap
         assert saved.unit_stamps() == {"u1": 119.0}  # the source's bound, lost scans included
     assert (out / "map-settings.json").read_text() == (data / "map-settings.json").read_text()
     assert main(["journal", "check", str(out)]) == 0
-    service = MapService(small_settings(out))
-    try:
-        assert_same_belief(service, fused(out, scans[:last]))
-    finally:
-        service.close()
+    assert_restart_rebuilds(out, scans[:last])
 
 
 def test_salvage_quarantines_damaged_records_and_keeps_seqs(tmp_path, capsys) -> None:
