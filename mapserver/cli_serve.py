@@ -47,6 +47,7 @@ def run_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from mapserver.api.app import create_app
+    from mapserver.journal import JournalError
     from mapserver.service import DataDirError
 
     overrides = {
@@ -58,7 +59,7 @@ def run_serve(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(args.config, overrides)
         app = create_app(settings)
-    except (SettingsError, DataDirError) as exc:
+    except (SettingsError, DataDirError, JournalError) as exc:
         print(f"fleetmap serve: error: {exc}", file=sys.stderr)
         return 2
     if settings.open_access:
@@ -78,10 +79,16 @@ def run_replay(args: argparse.Namespace) -> int:
     from mapserver.replay import ReplayError, replay_journal
 
     try:
-        belief, scans = replay_journal(args.source, until=args.until)
+        belief, scans, skipped = replay_journal(args.source, until=args.until)
     except ReplayError as exc:
         print(f"fleetmap replay: error: {exc}", file=sys.stderr)
         return 2
+    for record in skipped:
+        print(
+            f"fleetmap replay: skipped damaged record seq {record.seq} "
+            f"(unit {record.unit_id!r}): {record.reason}",
+            file=sys.stderr,
+        )
     return write_replayed(belief, scans, args)
 
 

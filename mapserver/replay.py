@@ -1,15 +1,23 @@
 """Read a server's journal back: the empty belief grid its data dir was made with, and
-its scans in journal order (optionally only those with stamp <= ``until``)."""
+its scans in journal order (optionally only those with stamp <= ``until``).
+
+Read-only: a damaged record (its checksum fails, its body does not parse, or
+``Scan.from_dict`` refuses it) and a scan that breaks the fleet clock's rule (with its
+default settings, ``fleet_clock``) are skipped and reported, as the server would
+quarantine them, but the journal is not changed."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from mapserver.belief import BeliefGrid
+from mapserver.fleet_clock import FleetClock
 from mapserver.geometry import GridGeometry
 from mapserver.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
-from mapserver.scan import Scan, ScanError
+from mapserver.journal_reading import read_records
+from mapserver.scan import Scan
 from mapserver.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service import MAP_SETTINGS_FILE
 
@@ -18,8 +26,20 @@ class ReplayError(ValueError):
     """The source is not a readable server journal."""
 
 
-def replay_journal(source: Path, until: float | None = None) -> tuple[BeliefGrid, list[Scan]]:
-    """(empty belief grid with the recorded map settings, the journal's scans)."""
+@dataclass(frozen=True)
+class Skipped:
+    """A journal record left out of a replay: its seq, unit and why."""
+
+    seq: int
+    unit_id: str
+    reason: str
+
+
+def replay_journal(
+    source: Path, until: float | None = None
+) -> tuple[BeliefGrid, list[Scan], list[Skipped]]:
+    """(empty belief grid with the recorded map settings, the journal's intact scans,
+    the damaged records skipped)."""
     source = Path(source)
     data_dir = source if source.is_dir() else source.parent
     settings_path = data_dir / MAP_SETTINGS_FILE
@@ -35,9 +55,15 @@ def replay_journal(source: Path, until: float | None = None) -> tuple[BeliefGrid
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ReplayError(f"{settings_path}: not a map server's settings ({exc})") from None
     journal_file = source if source.is_file() else source / JOURNAL_FILENAME
+    scans: list[Scan] = []
+    skipped: list[Skipped] = []
     try:
         with open_journal_for_replay(journal_file) as journal:
-            scans = [Scan.from_dict(body) for _, body in journal.scans_after(0, until_stamp=until)]
-    except (JournalError, ScanError, OSError) as exc:
+            for record in read_records(journal, FleetClock(), until=until):
+                if record.scan is None:
+                    skipped.append(Skipped(record.seq, record.unit_id, record.problem))
+                else:
+                    scans.append(record.scan)
+    except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None
-    return belief, scans
+    return belief, scans, skipped

@@ -16,11 +16,12 @@ version and stamp), so a slow reader never stalls ingest.
 Durability. Start-up loads the newest snapshot and replays the journal after it: the
 same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots are taken
 every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time.
+Storage faults (docs/durability.md): an unusable snapshot falls back to an older one or
+to a full replay; a damaged journal record is quarantined, logged and skipped.
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import math
@@ -36,8 +37,10 @@ import numpy as np
 
 from mapserver.belief import BeliefGrid
 from mapserver.costmap import LayeredCostmap, Patch
+from mapserver.datadir_lock import FileLocks, LockBusy
 from mapserver.fleet_clock import FleetClock
-from mapserver.journal import Journal, journal_path
+from mapserver.journal import Journal, JournalError, journal_path
+from mapserver.journal_reading import read_records
 from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.occupancy import occupancy_percent
 from mapserver.queries import (
@@ -49,6 +52,7 @@ from mapserver.queries import (
 )
 from mapserver.scan import Scan
 from mapserver.settings import Settings
+from mapserver.snapshot_state import load_snapshot_into
 from planner.grid_search import GridPlanner, PlanResult
 
 logger = logging.getLogger(__name__)
@@ -121,6 +125,7 @@ class MapService:
             synchronous=settings.journal.synchronous,
             keep_snapshots=settings.journal.keep_snapshots,
         )
+        self.snapshot_failures = 0  # snapshot saves that failed (metrics)
         self.belief = settings.belief_grid(self.geometry)
         self.version = 0
         self.clock = FleetClock(settings.clock.max_lead_s, settings.clock.window_scans)
@@ -153,25 +158,46 @@ class MapService:
 
     # ---------------------------------------------------------------- lifecycle
     def _restore(self) -> None:
-        """Newest snapshot + the journal after it."""
-        snapshot = self.journal.latest_snapshot()
-        after = 0
-        if snapshot is not None:
-            arrays = snapshot.arrays
-            self.belief.load_state(arrays["log_odds"], arrays["last_observed"], snapshot.stamp)
-            self.belief.scans_fused = int(arrays["scans_fused"])
-            self.version = after = snapshot.seq
-        for seq, body in self.journal.scans_after(after):
-            scan = Scan.from_dict(body, max_beams=self.settings.limits.max_beams)
-            lead = self.clock.check(scan.stamp)
-            if lead is not None:  # journaled before the clock rule: not part of the map
-                logger.warning(
-                    "journal seq %d (unit %s): stamp %s", seq, scan.unit_id, lead.describe()
-                )
+        """Newest usable snapshot + the journal after it. A damaged record (checksum,
+        body, or a scan ``Scan.from_dict`` refuses) and a scan that breaks the fleet
+        clock's rule (journaled before the rule) are quarantined and skipped. On an error
+        that stops start-up the journal and the lock are released."""
+        try:
+            after = self._load_newest_snapshot()
+            max_beams = self.settings.limits.max_beams
+            for record in read_records(self.journal, self.clock, after, max_beams=max_beams):
+                if record.scan is None:
+                    self._quarantine(record.seq, record.unit_id, record.problem)
+                    if record.clock_lead:  # the real unit may post at its own time again
+                        self.journal.reset_unit_stamp(record.unit_id)
+                    continue
+                self.belief.fuse(record.scan)
+                self.version = record.seq
+        except BaseException:
+            self.journal.close()
+            self._lock_handle.close()
+            raise
+
+    def _load_newest_snapshot(self) -> int:
+        """Load the newest usable snapshot into the belief; returns its seq (0: none, a
+        full replay). An unusable one is logged and the next older one tried."""
+        seqs = self.journal.snapshot_seqs()
+        for seq in reversed(seqs):
+            try:
+                load_snapshot_into(self.belief, self.journal.load_snapshot(seq))
+            except (JournalError, ValueError) as exc:
+                logger.error("snapshot at seq %d is unusable, trying an older one: %s", seq, exc)
                 continue
-            self.clock.observe(scan.unit_id, scan.stamp)
-            self.belief.fuse(scan)
             self.version = seq
+            return seq
+        if seqs:
+            logger.error("no usable snapshot (seqs %s): replaying the whole journal", seqs)
+        return 0
+
+    def _quarantine(self, seq: int, unit_id: str, reason: str) -> None:
+        """Move journal record ``seq`` to quarantine (never replayed again) and log it."""
+        self.journal.quarantine(seq, reason)
+        logger.error("journal seq %d (unit %r) quarantined: %s", seq, unit_id, reason)
 
     def close(self) -> None:
         """Stop the ingest thread (after what is queued), close the journal, unlock."""
@@ -381,6 +407,7 @@ class MapService:
         try:
             self.journal.save_snapshot(seq, stamp, seq, arrays)
         except Exception:  # the journal still holds every scan: start-up replays more
+            self.snapshot_failures += 1
             logger.exception("snapshot at seq %d failed", seq)
 
     # --------------------------------------------------------------------- reads
@@ -546,12 +573,14 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     return json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
 
 
-def _lock_data_dir(data_dir: Path):
-    """An exclusive lock on the data dir for this process's lifetime (one writer)."""
-    handle = open(data_dir / LOCK_FILE, "a")  # noqa: SIM115 - held until close()
+def _lock_data_dir(data_dir: Path) -> FileLocks:
+    """An exclusive lock on the data dir for this process's lifetime (one writer): on
+    ``server.lock`` and on the journal file itself, so deleting ``server.lock`` does not
+    let a second server in (``mapserver.datadir_lock``)."""
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.close()
-        raise DataDirError(f"data_dir {data_dir} is in use by another map server") from None
-    return handle
+        return FileLocks([data_dir / LOCK_FILE, journal_path(data_dir)])
+    except LockBusy as exc:
+        raise DataDirError(
+            f"data_dir {data_dir} is in use by another map server or a `fleetmap journal` "
+            f"command ({exc.path.name} is locked)"
+        ) from None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mapserver.cli_journal import add_journal_parser
 from mapserver.cli_map import add_map_parser
 from mapserver.cli_serve import add_serve_parsers
 from planner.cli_plan import add_plan_parser
@@ -25,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_parsers(sub)
     sub.choices["replay"].set_defaults(handler=run_replay)  # journals and run replays
     add_sweep_parser(sub)
+    add_journal_parser(sub)
     return parser
 
 

@@ -134,3 +134,22 @@ def test_digests_tell_scans_apart_and_nans_alike():
     c = Scan.from_dict(scan_body(ranges=[3.0, 3.0]))
     assert a.digest() == b.digest() != c.digest()
     assert np.isnan(a.journal_record()["ranges"][0])
+
+
+def test_an_old_journal_with_a_stamp_far_ahead_replays_without_it(data_dir):
+    with app_on(data_dir) as client:
+        fleet_scans(client)
+        before = wall_cells(client)
+        service = client.app.state.service
+        # as a server before the clock rule would have journaled it
+        service.journal.append([Scan.from_dict(scan_body(stamp=1e15, unit="u7")).journal_record()])
+        bad_seq = service.journal.last_seq()
+    with app_on(data_dir) as client:
+        service = client.app.state.service
+        assert wall_cells(client) == before
+        assert client.get("/v1/map/meta").json()["stamp"] == 10.0
+        assert [row[0] for row in service.journal.quarantined_rows()] == [bad_seq]
+        assert "leads the server's wall clock" in service.journal.quarantined_rows()[0][3]
+        assert "fleetmap_journal_quarantined 1.0" in client.get("/metrics").text
+        ok = client.post("/v1/scans", json=scan_body(stamp=10.5, unit="u7"))
+        assert ok.status_code == 200  # the real u7 is not locked out

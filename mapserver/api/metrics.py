@@ -1,5 +1,5 @@
 """Prometheus metrics of one server (its own registry): scans fused, fusion time, request
-latency, journal size, map version."""
+latency, journal size, map version, quarantined journal records, failed snapshots."""
 
 from __future__ import annotations
 
@@ -43,3 +43,15 @@ class ServerMetrics:
         journal.set_function(service.journal_bytes)
         version = Gauge("fleetmap_map_version", "The map's version", registry=self.registry)
         version.set_function(lambda: service.version)
+        quarantined = Gauge(
+            "fleetmap_journal_quarantined",
+            "Journal records in quarantine (damaged or dropped; never replayed)",
+            registry=self.registry,
+        )
+        quarantined.set_function(lambda: service.journal.quarantined)
+        snapshot_failures = Gauge(
+            "fleetmap_snapshot_failures",
+            "Snapshot saves that failed since start-up (the journal still holds the scans)",
+            registry=self.registry,
+        )
+        snapshot_failures.set_function(lambda: service.snapshot_failures)

@@ -1,0 +1,44 @@
+"""A grid snapshot's arrays checked against the grid before they replace a belief's state.
+
+A snapshot holds ``log_odds`` and ``last_observed`` of shape (height, width) and the
+scalar ``scans_fused``. One that decodes but holds something else (another grid's shape,
+a missing array) must not be loaded: start-up then falls back to an older snapshot or to
+a full replay of the journal.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mapserver.belief import BeliefGrid
+from mapserver.journal import Snapshot
+
+GRID_ARRAYS = ("log_odds", "last_observed")
+
+
+def snapshot_problem(snapshot: Snapshot, shape: tuple[int, int]) -> str | None:
+    """Why ``snapshot`` cannot be loaded into a grid of ``shape`` (rows, cols), or None."""
+    arrays = snapshot.arrays
+    for name in GRID_ARRAYS:
+        if name not in arrays:
+            return f"no {name} array (it holds {sorted(arrays)})"
+        array = arrays[name]
+        if array.shape != tuple(shape):
+            return f"{name} has shape {array.shape}, the grid is {tuple(shape)}"
+        if not np.issubdtype(array.dtype, np.floating):
+            return f"{name} has dtype {array.dtype}, expected a float array"
+    fused = arrays.get("scans_fused")
+    if fused is None or fused.shape != () or not np.issubdtype(fused.dtype, np.integer):
+        return f"scans_fused must be an integer scalar, got {fused!r}"
+    return None
+
+
+def load_snapshot_into(belief: BeliefGrid, snapshot: Snapshot) -> None:
+    """Replace ``belief``'s state by ``snapshot``'s; ValueError (nothing changed) when
+    ``snapshot_problem`` finds one."""
+    problem = snapshot_problem(snapshot, belief.geometry.shape)
+    if problem is not None:
+        raise ValueError(f"snapshot at seq {snapshot.seq}: {problem}")
+    arrays = snapshot.arrays
+    belief.load_state(arrays["log_odds"], arrays["last_observed"], snapshot.stamp)
+    belief.scans_fused = int(arrays["scans_fused"])
