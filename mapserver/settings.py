@@ -229,12 +229,15 @@ class ReadSettings(_Section):
     max_queued_queries: queries waiting for a turn; beyond it a query gets 429.
     max_queued_plans: plans waiting for the planner (one plans at a time); beyond, 429.
     retry_after_s: [s] the ``Retry-After`` a 429 carries.
+    nice: how much lower the CPU priority of the threads computing reads is (Linux nice
+        steps, 0..19; 0: the same as ingest's), so that ingest gets the CPU first.
     """
 
     max_concurrent_queries: int = Field(default=2, gt=0)
     max_queued_queries: int = Field(default=16, ge=0)
     max_queued_plans: int = Field(default=8, ge=0)
     retry_after_s: int = Field(default=1, gt=0)
+    nice: int = Field(default=10, ge=0, le=19)
 
 
 class JournalSettings(_Section):

@@ -1,16 +1,25 @@
-"""Admission of heavy reads (queries, plans): they compute on worker threads, a bounded
-number at a time, and past a bounded queue they are refused at once with 429 and
-``Retry-After`` rather than pile up, so that scan ingest and ``/healthz``, which run on
-the event loop, keep their pace whatever readers do."""
+"""Admission of heavy reads (queries, plans): they compute on worker threads of their
+own, a bounded number at a time, and past a bounded queue they are refused at once with
+429 and ``Retry-After`` rather than pile up, so that scan ingest and ``/healthz``, which
+run on the event loop and the ingest thread, keep their pace whatever readers do.
+
+The workers run at a lower CPU priority (``nice``, Linux: a thread is a task with its
+own nice value), so on a machine with fewer cores than busy threads the scheduler gives
+ingest the CPU first; a read still gets every cycle ingest does not need."""
 
 from __future__ import annotations
 
 import asyncio
+import logging
+import os
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-import anyio.to_thread
 from fastapi import HTTPException
+
+logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
@@ -20,11 +29,19 @@ class Admission:
     turn; a call beyond both is refused (429) naming ``what`` and the bound.
 
     retry_after_s: [s] the ``Retry-After`` of a refusal.
+    nice: how much lower the workers' CPU priority is (0: the same as ingest's).
+    ``close()`` stops the workers.
     """
 
-    def __init__(self, what: str, running: int, waiting: int, retry_after_s: int) -> None:
+    def __init__(
+        self, what: str, running: int, waiting: int, retry_after_s: int, nice: int = 0
+    ) -> None:
         if running < 1 or waiting < 0:
             raise ValueError(f"running must be >= 1 and waiting >= 0, got {running}, {waiting}")
+        self._workers = ThreadPoolExecutor(
+            running, thread_name_prefix=f"fleetmap-{what}", initializer=_lower_priority,
+            initargs=(nice,),
+        )  # fmt: skip
         self.what = what
         self.running = running
         self.waiting = waiting
@@ -48,6 +65,21 @@ class Admission:
         self.admitted += 1
         try:
             async with self._turns:
-                return await anyio.to_thread.run_sync(work)
+                return await asyncio.get_running_loop().run_in_executor(self._workers, work)
         finally:
             self.admitted -= 1
+
+    def close(self) -> None:
+        """Stop the workers once they finish what they compute."""
+        self._workers.shutdown(wait=True, cancel_futures=True)
+
+
+def _lower_priority(nice: int) -> None:
+    """Lower the calling thread's CPU priority by ``nice`` (where the OS allows it)."""
+    if nice <= 0:
+        return
+    try:
+        current = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), min(19, current + nice))
+    except (AttributeError, OSError) as exc:  # not Linux, or not permitted: same priority
+        logger.info("heavy reads run at the normal priority (%s)", exc)

@@ -42,6 +42,8 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
+        app.state.query_admission.close()
+        app.state.plan_admission.close()
         service.close()
 
     app = FastAPI(
@@ -57,9 +59,15 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.units = UnitBoard()
     reads = settings.reads
     app.state.query_admission = Admission(
-        "query", reads.max_concurrent_queries, reads.max_queued_queries, reads.retry_after_s
+        "query",
+        reads.max_concurrent_queries,
+        reads.max_queued_queries,
+        reads.retry_after_s,
+        reads.nice,
     )
-    app.state.plan_admission = Admission("plan", 1, reads.max_queued_plans, reads.retry_after_s)
+    app.state.plan_admission = Admission(
+        "plan", 1, reads.max_queued_plans, reads.retry_after_s, reads.nice
+    )
     routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
     for module in (*routers, routes_viewer):
         app.include_router(module.router)

@@ -1,0 +1,56 @@
+"""No poison pill: every scan ``Scan.from_dict`` accepts fuses without an error and
+leaves every cell finite, however extreme its numbers (so the journal never holds a scan
+the server cannot replay)."""
+
+
+import numpy as np
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from mapserver.belief import BeliefGrid
+from mapserver.geometry import GridGeometry
+from mapserver.scan import MAX_POSE_STD, Scan, ScanError
+from mapserver.sensor_model import Policy
+
+GEOMETRY = GridGeometry(60, 40, 0.1)  # 6 m x 4 m
+HUGE = st.sampled_from([1e-300, 1e-12, 1e12, 1e300, 1.7e308, -1e300, 10**300])
+ANY = st.one_of(st.floats(-1e3, 1e3), HUGE, st.floats(allow_nan=True, allow_infinity=True))
+POSITIVE = st.one_of(st.floats(1e-3, 10.0), st.sampled_from([1e-300, 1e-12, 1e12, 1e300]))
+
+
+@st.composite
+def bodies(draw):
+    """Scan bodies on the map, mostly valid, with extreme numbers where numbers go."""
+    range_min = draw(st.one_of(st.floats(0.0, 1.0), HUGE))
+    return {
+        "unit_id": "u1",
+        "stamp": draw(ANY),
+        "pose": {
+            "x": draw(st.floats(0.0, 5.99)),
+            "y": draw(st.floats(0.0, 3.99)),
+            "yaw": draw(ANY),
+        },
+        "pose_std": draw(st.none() | st.fixed_dictionaries({"xy": POSITIVE, "yaw": POSITIVE})),
+        "angle_min": draw(ANY),
+        "angle_increment": draw(POSITIVE),
+        "range_min": range_min,
+        "range_max": draw(st.one_of(st.floats(1.0, 30.0), HUGE)),
+        "ranges": draw(st.lists(st.none() | st.floats(0.0, 40.0) | ANY, min_size=1, max_size=40)),
+    }
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow], deadline=None)
+@given(body=bodies(), policy=st.sampled_from(list(Policy)))
+def test_an_accepted_scan_always_fuses_and_every_cell_stays_finite(body, policy):
+    try:
+        scan = Scan.from_dict(body)
+    except ScanError:
+        return  # refused by name: never journaled
+    event("accepted")
+    assert scan.pose_std is None or max(scan.pose_std.xy, scan.pose_std.yaw) <= MAX_POSE_STD
+    belief = BeliefGrid(GEOMETRY, policy=policy)
+    belief.fuse(scan)
+    assert np.isfinite(belief.raw_log_odds()).all()
+    seen = belief.last_observed()
+    assert np.isnan(seen[~np.isfinite(seen)]).all()  # a stamp or never observed
+    assert np.isfinite(belief.log_odds_at(scan.stamp + 1.0)).all()
