@@ -23,8 +23,8 @@ rate x seconds slots, of which some were posted and fewer, on a slow server, ack
 Printed: scans offered, posted, acknowledged, missed slots; offered and acknowledged
 scans/s; errors by kind (HTTP status other than 200, connection errors, timeouts);
 request latency p50/p99/max [ms]; the server's RSS [MiB] every 5 s and its slope over
-the second half of the run [MiB/min] (flat memory: near 0); journal growth [bytes] and
-scans journaled vs acknowledged; the CPU share of a core used by this load generator
+the second half of the run [MiB/min, Theil-Sen] (flat memory: near 0); journal growth
+[bytes] and scans journaled vs acknowledged; the CPU share of a core used by this load generator
 and by the server (the machine has 2 shared cores: the generator must not be the
 bottleneck). ``--json`` prints the figures as one JSON object on the last line.
 Measures only; tests assert behaviour.
@@ -251,12 +251,12 @@ def grid_for(units: int) -> dict[str, float]:
 
 
 def slope_mib_per_min(samples: list[tuple[float, float | None]], after: float) -> float | None:
-    """Least-squares slope [MiB/min] of the RSS samples taken at t >= ``after`` [s]."""
+    """Theil-Sen slope [MiB/min] of the RSS samples taken at t >= ``after`` [s]: the
+    median of the pairwise slopes, so one odd sample (a snapshot's copy) does not sway it."""
     points = [(t, r) for t, r in samples if t >= after and r is not None]
-    if len(points) < 2:
-        return None
-    t, r = np.array(points).T
-    return float(np.polyfit(t / 60.0, r, 1)[0])
+    pairs = [(r1 - r0) / (t1 - t0) for i, (t0, r0) in enumerate(points)
+             for t1, r1 in points[i + 1:] if t1 > t0]  # fmt: skip
+    return float(np.median(pairs)) * 60.0 if pairs else None
 
 
 def main() -> None:
