@@ -1,0 +1,357 @@
+"""Fleet load: many units posting 360-beam scans at 10 Hz to a real map server, closed loop.
+
+Run: ``python -m tests.benchmarks.fleet_load [--units 100] [--rate 10] [--seconds 60]
+[--batch-endpoint] [--timeout 10] [--json]`` (or ``python tests/benchmarks/fleet_load.py``)
+
+Starts ``fleetmap serve`` (default settings: 100 m x 50 m at 0.05 m, ``decay``, journal
+``synchronous=FULL``) on a free loopback port in a subprocess. Each of ``--units``
+simulated units (no PyBullet) sits in a 10 m x 5 m lattice cell of the grid, in a
+rectangular bay with a doorway, and moves slowly (at most 0.16 m/s) about its spot; its
+scans are synthetic (360 beams over a full turn, range_max 20 m, ``fleet.lidar``
+defaults; the distance to the bay's walls, no return through the doorway), with its own
+stamp clock (0, 0.1, 0.2 ... s, one step per scan) and encoded as ``MapClient`` sends a
+``Scan`` (orjson, no-return as ``2 * range_max + 1``, ``Content-Type: application/json``).
+A unit posts each scan as ``POST /v1/scans`` (``--batch-endpoint``: a one-scan
+``POST /v1/scans/batch``, the endpoint the simulator's ``ScanPoster`` uses for a tick) over
+its own keep-alive connection (a thread per unit with ``http.client``: a sixth of the CPU
+httpx.AsyncClient takes per request, so the generator leaves the 2 cores to the server),
+waits for the reply, then sleeps until its next slot (1 / ``--rate`` s; units are
+staggered over the first slot). A unit still waiting when its next slot starts posts at
+once when the reply comes and counts the slots that passed as missed: offered = units x
+rate x seconds slots, of which some were posted and fewer, on a slow server, acknowledged.
+
+Printed: scans offered, posted, acknowledged, missed slots; offered and acknowledged
+scans/s; errors by kind (HTTP status other than 200, connection errors, timeouts);
+request latency p50/p99/max [ms]; the server's RSS [MiB] every 5 s and its slope over
+the second half of the run [MiB/min, Theil-Sen] (flat memory: near 0); journal growth
+[bytes] and scans journaled vs acknowledged; the CPU share of a core used by this load generator
+and by the server (the machine has 2 shared cores: the generator must not be the
+bottleneck). ``--json`` prints the figures as one JSON object on the last line.
+Measures only; tests assert behaviour.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+# Run as a script, this file's folder comes first on sys.path and would shadow the
+# ``fleet`` package (tests/benchmarks/fleet.py): this checkout's root instead.
+HERE = Path(__file__).resolve().parent
+sys.path[:] = [str(HERE.parents[1])] + [p for p in sys.path if Path(p or ".").resolve() != HERE]
+
+import argparse  # noqa: E402
+import http.client  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import resource  # noqa: E402
+import tempfile  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from collections import Counter  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
+
+import httpx  # noqa: E402
+import numpy as np  # noqa: E402
+import orjson  # noqa: E402
+
+from fleet.boxworld import beam_angles  # noqa: E402
+from tests.benchmarks.server_process import LoggedServer  # noqa: E402
+
+# fleet.lidar.LidarConfig's defaults (that module imports PyBullet, which prints)
+BEAMS, RANGE_MIN, RANGE_MAX = 360, 0.05, 20.0  # [m]
+ANGLE_MIN, ANGLE_INCREMENT = beam_angles(BEAMS, 2 * math.pi)  # a full turn [rad]
+CELL_X, CELL_Y = 10.0, 5.0  # [m] lattice spacing of the units on the 100 m x 50 m grid
+BAY_X, BAY_Y = 4.0, 2.0  # [m] half sizes of a unit's bay
+SWAY_X, SWAY_Y, SWAY_PERIOD = 1.5, 0.5, 60.0  # [m], [m], [s]: the slow motion
+DOOR = slice(80, 100)  # beams through the doorway: no return
+RESOLUTION = 0.05  # [m/cell], the server's default
+RSS_EVERY = 5.0  # [s]
+HEADERS = {"Content-Type": "application/json"}
+
+
+class SyntheticUnit:
+    """Unit ``k``: its bay, its pose at a stamp and its scan bodies (JSON bytes)."""
+
+    def __init__(self, k: int, columns: int) -> None:
+        self.unit_id = f"u{k}"
+        self.cx = CELL_X * (k % columns + 0.5)
+        self.cy = CELL_Y * (k // columns + 0.5)
+        self.phase = 2 * math.pi * k / 17.0
+        self.angles = ANGLE_MIN + ANGLE_INCREMENT * np.arange(BEAMS)
+
+    def pose(self, stamp: float) -> tuple[float, float, float]:
+        w = 2 * math.pi * stamp / SWAY_PERIOD + self.phase
+        return (self.cx + SWAY_X * math.sin(w), self.cy + SWAY_Y * math.sin(2 * w),
+                0.3 * math.sin(w))  # fmt: skip
+
+    def ranges(self, x: float, y: float, yaw: float) -> np.ndarray:
+        """[m] distance from (x, y) to the bay's walls along each beam; doorway beams and
+        any beyond range_max read ``2 * range_max + 1`` (no return, as MapClient sends)."""
+        a = yaw + self.angles
+        dx, dy = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore"):
+            tx = np.where(dx > 0, self.cx + BAY_X - x, self.cx - BAY_X - x) / dx
+            ty = np.where(dy > 0, self.cy + BAY_Y - y, self.cy - BAY_Y - y) / dy
+        r = np.minimum(np.abs(tx), np.abs(ty))
+        no_return = 2.0 * RANGE_MAX + 1.0
+        r[DOOR] = no_return
+        r[r > RANGE_MAX] = no_return
+        return r
+
+    def body(self, n: int) -> bytes:
+        """The unit's ``n``-th scan (stamp n * 0.1 s) as CONTRACT 2.1 JSON."""
+        stamp = round(n * 0.1, 6)
+        x, y, yaw = self.pose(stamp)
+        scan = {
+            "unit_id": self.unit_id,
+            "stamp": stamp,
+            "frame": "map",
+            "pose": {"x": x, "y": y, "yaw": yaw},
+            "angle_min": ANGLE_MIN,
+            "angle_increment": ANGLE_INCREMENT,
+            "range_min": RANGE_MIN,
+            "range_max": RANGE_MAX,
+            "ranges": self.ranges(x, y, yaw),
+        }
+        return orjson.dumps(scan, option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+@dataclass
+class Tally:
+    """What a unit saw: posts, replies by status, transport errors, latencies (the slots
+    not posted in are the missed ones: every unit has rate x seconds slots)."""
+
+    posted: int = 0
+    acknowledged: int = 0
+    statuses: Counter = field(default_factory=Counter)
+    transport: Counter = field(default_factory=Counter)  # "timeout" or the error's name
+    latencies: list[float] = field(default_factory=list)  # [s] of every reply
+    last_reply: float = 0.0  # time.monotonic()
+
+    def add(self, other: Tally) -> None:
+        self.posted += other.posted
+        self.acknowledged += other.acknowledged
+        self.statuses.update(other.statuses)
+        self.transport.update(other.transport)
+        self.latencies += other.latencies
+        self.last_reply = max(self.last_reply, other.last_reply)
+
+
+def run_unit(
+    unit: SyntheticUnit, port: int, path: str, start: float, stop: float, period: float,
+    timeout: float, batch: bool, tally: Tally,
+) -> None:  # fmt: skip
+    """Closed loop on one keep-alive connection: post, read the reply, sleep to the next
+    slot (late: post at once). After a transport error the next post reconnects."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
+    slot, n = 0, 0
+    try:
+        while start + slot * period < stop:
+            delay = start + slot * period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            content = unit.body(n)
+            if batch:
+                content = b'{"scans":[' + content + b"]}"
+            n += 1
+            tally.posted += 1
+            t0 = time.perf_counter()
+            try:
+                conn.request("POST", path, body=content, headers=HEADERS)
+                reply = conn.getresponse()
+                reply.read()
+            except TimeoutError:
+                tally.transport["timeout"] += 1
+                conn.close()
+            except (OSError, http.client.HTTPException) as exc:
+                tally.transport[type(exc).__name__] += 1
+                conn.close()
+                time.sleep(period)  # a refused connection would spin otherwise
+            else:
+                tally.latencies.append(time.perf_counter() - t0)
+                tally.statuses[reply.status] += 1
+                tally.acknowledged += reply.status == 200
+            tally.last_reply = time.monotonic()
+            due = math.floor((time.monotonic() - start) / period)  # the slot running now
+            slot = max(slot + 1, due)  # late: post at once; the slots passed are missed
+    finally:
+        conn.close()
+
+
+def load(server: LoggedServer, args: argparse.Namespace) -> tuple[Tally, list, float]:
+    """Run every unit in its own thread and sample the server's RSS every RSS_EVERY s;
+    (the units' tally, [(t [s], RSS [MiB])], wall time [s])."""
+    units = [SyntheticUnit(k, lattice_columns(args.units)) for k in range(args.units)]
+    for unit in units:
+        unit.body(0)  # warm numpy and orjson outside the measured run
+    period = 1.0 / args.rate
+    path = "/v1/scans/batch" if args.batch_endpoint else "/v1/scans"
+    tallies = [Tally() for _ in units]
+    start = time.monotonic() + 0.5
+    stop = start + args.seconds
+    threads = [
+        threading.Thread(
+            target=run_unit,
+            args=(
+                unit,
+                server.port,
+                path,
+                start + period * k / len(units),
+                stop,
+                period,
+                args.timeout,
+                args.batch_endpoint,
+                tally,
+            ),
+            daemon=True,
+        )
+        for k, (unit, tally) in enumerate(zip(units, tallies, strict=True))
+    ]
+    for thread in threads:
+        thread.start()
+    rss = []
+    for k in range(int(args.seconds // RSS_EVERY) + 1):
+        time.sleep(max(0.0, start + k * RSS_EVERY - time.monotonic()))
+        rss.append((round(time.monotonic() - start, 1), server.rss_mib()))
+    for thread in threads:
+        thread.join()
+    total = Tally()
+    for tally in tallies:
+        total.add(tally)
+    return total, rss, max(total.last_reply, stop) - start
+
+
+def warm_up(url: str, scans: int = 3) -> list[float]:
+    """Post a few scans of a unit "warmup" before the run (the server compiles its numba
+    kernels on the first scan); their latencies [ms]."""
+    unit = SyntheticUnit(0, 1)
+    unit.unit_id = "warmup"
+    times = []
+    with httpx.Client(base_url=url, timeout=120) as client:
+        for n in range(scans):
+            t0 = time.perf_counter()
+            client.post("/v1/scans", content=unit.body(n), headers=HEADERS)
+            times.append((time.perf_counter() - t0) * 1e3)
+    return times
+
+
+def lattice_columns(units: int) -> int:
+    """Columns of the units' lattice: about square in metres (10 x 10 cells for 100)."""
+    return max(1, math.ceil(math.sqrt(units * CELL_Y / CELL_X * 2)))
+
+
+def grid_for(units: int) -> dict[str, float]:
+    """The server's grid: the default 100 m x 50 m at 0.05 m, larger if the lattice is."""
+    columns = lattice_columns(units)
+    rows = math.ceil(units / columns)
+    width, height = max(100.0, columns * CELL_X), max(50.0, rows * CELL_Y)
+    return {"width": round(width / RESOLUTION), "height": round(height / RESOLUTION),
+            "resolution": RESOLUTION}  # fmt: skip
+
+
+def slope_mib_per_min(samples: list[tuple[float, float | None]], after: float) -> float | None:
+    """Theil-Sen slope [MiB/min] of the RSS samples taken at t >= ``after`` [s]: the
+    median of the pairwise slopes, so one odd sample (a snapshot's copy) does not sway it."""
+    points = [(t, r) for t, r in samples if t >= after and r is not None]
+    pairs = [(r1 - r0) / (t1 - t0) for i, (t0, r0) in enumerate(points)
+             for t1, r1 in points[i + 1:] if t1 > t0]  # fmt: skip
+    return float(np.median(pairs)) * 60.0 if pairs else None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, default=100, help="simulated units")
+    parser.add_argument("--rate", type=float, default=10.0, help="[Hz] scans per unit")
+    parser.add_argument("--seconds", type=float, default=60.0, help="[s] load duration")
+    parser.add_argument("--timeout", type=float, default=10.0, help="[s] per request")
+    parser.add_argument(
+        "--batch-endpoint", action="store_true", help="one-scan POST /v1/scans/batch"
+    )
+    parser.add_argument("--json", action="store_true", help="print figures as JSON last")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
+        server = LoggedServer(Path(tmp) / "data", {"grid": grid_for(args.units)})
+        try:
+            warm_ms = warm_up(server.url)
+            journal_before = server.journal_bytes()
+            journaled_before = server.journal_count() or 0
+            cpu_server0 = server.cpu_seconds() or 0.0
+            usage0 = resource.getrusage(resource.RUSAGE_SELF)
+            tally, rss, wall = load(server, args)
+            usage1 = resource.getrusage(resource.RUSAGE_SELF)
+            cpu_server = (server.cpu_seconds() or 0.0) - cpu_server0
+            journal_after = server.journal_bytes()
+        finally:
+            server.stop()
+        journaled = (server.journal_count() or 0) - journaled_before
+        log_tail = server.log_text()[-2000:]
+
+    gen_cpu = (usage1.ru_utime - usage0.ru_utime) + (usage1.ru_stime - usage0.ru_stime)
+    ms = np.array(tally.latencies) * 1e3 if tally.latencies else np.array([math.nan])
+    offered = round(args.units * args.rate * args.seconds)
+    errors = {f"http_{s}": n for s, n in sorted(tally.statuses.items()) if s != 200}
+    errors.update(tally.transport)
+    f = {
+        "units": args.units,
+        "rate_hz": args.rate,
+        "seconds": args.seconds,
+        "endpoint": "/v1/scans/batch" if args.batch_endpoint else "/v1/scans",
+        "wall_s": round(wall, 2),
+        "warm_up_ms": [round(t, 1) for t in warm_ms],
+        "offered": offered,
+        "posted": tally.posted,
+        "acknowledged": tally.acknowledged,
+        "missed_slots": offered - tally.posted,
+        "offered_per_s": args.units * args.rate,
+        "acknowledged_per_s": tally.acknowledged / wall,
+        "errors": errors,
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()),
+        "rss_mib": [[t, None if r is None else round(r, 1)] for t, r in rss],
+        "rss_slope_second_half_mib_per_min": slope_mib_per_min(rss, args.seconds / 2),
+        "journal_bytes_before": journal_before,
+        "journal_bytes_after": journal_after,
+        "journal_growth_bytes": journal_after - journal_before,
+        "journaled_scans": journaled,
+        "generator_cpu_share": gen_cpu / wall,
+        "server_cpu_share": cpu_server / wall,
+    }
+    print(f"fleet load: {args.units} units x {args.rate:g} Hz for {args.seconds:g} s, "
+          f"{f['endpoint']}, closed loop (wall {wall:.1f} s)")  # fmt: skip
+    print(f"warm-up scans before the run (numba compiles on the first) [ms]: "
+          f"{', '.join(f'{t:.0f}' for t in warm_ms)}")  # fmt: skip
+    print(f"scans  offered {offered}  posted {tally.posted}  acknowledged {tally.acknowledged}"
+          f"  missed slots {offered - tally.posted}")  # fmt: skip
+    print(
+        f"rate   offered {f['offered_per_s']:.0f}/s  acknowledged "
+        f"{f['acknowledged_per_s']:.1f}/s ({f['acknowledged_per_s'] / f['offered_per_s']:.0%})"
+    )
+    print(f"errors {errors or 'none'}")
+    print(f"latency p50 {f['p50_ms']:.1f} ms  p99 {f['p99_ms']:.1f} ms  max {f['max_ms']:.1f} ms")
+    series = "  ".join(f"{t:g}s:{r if r is None else round(r)}" for t, r in rss)
+    print(f"server RSS [MiB] every {RSS_EVERY:g} s: {series}")
+    slope = f["rss_slope_second_half_mib_per_min"]
+    print("RSS slope over the second half: "
+          + ("n/a (too few samples)" if slope is None else f"{slope:+.1f} MiB/min"))  # fmt: skip
+    growth = f["journal_growth_bytes"]
+    per_scan = growth / tally.acknowledged if tally.acknowledged else math.nan
+    print(
+        f"journal {journal_before} -> {journal_after} bytes (+{growth / 2**20:.1f} MiB, "
+        f"{per_scan:.0f} B per acknowledged scan); journaled scans {journaled} vs "
+        f"acknowledged {tally.acknowledged}"
+    )
+    print(
+        f"CPU share of one core: load generator {f['generator_cpu_share']:.0%}, "
+        f"server {f['server_cpu_share']:.0%} (2 shared cores)"
+    )
+    if errors and log_tail.strip():
+        print("server log tail:\n" + log_tail)
+    if args.json:
+        print(json.dumps(f))
+
+
+if __name__ == "__main__":
+    main()
