@@ -60,6 +60,14 @@ def rss_kib(pid):
         return next(int(line.split()[1]) for line in status if line.startswith("VmRSS"))
 
 
+def reply_of(sock) -> bytes:
+    """Everything the server sends on ``sock`` until it closes it."""
+    parts = []
+    while part := sock.recv(65536):
+        parts.append(part)
+    return b"".join(parts)
+
+
 def status_of(reply: bytes) -> int:
     return int(reply.split(b" ", 2)[1])
 
@@ -68,7 +76,7 @@ def test_a_100_mb_body_to_plan_is_a_413_without_reading_it(server):
     rss = rss_kib(server.proc.pid)
     head = b"POST /v1/plan HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
     declared = connect(server, head + b"Content-Length: 100000000\r\n\r\n{")
-    reply = declared.recv(4096)
+    reply = reply_of(declared)
     assert status_of(reply) == 413 and b"at most 2097152 bytes" in reply
     streamed = connect(server, head + b"Transfer-Encoding: chunked\r\n\r\n")
     chunk = b"100000\r\n" + b"x" * 0x100000 + b"\r\n"  # 1 MiB chunks, up to 100 MB
