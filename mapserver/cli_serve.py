@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 from mapserver.belief import BeliefGrid
 from mapserver.scan import Scan
-from mapserver.settings import SettingsError, load_settings
+from mapserver.settings import Settings, SettingsError, load_settings
 
 
 def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
@@ -71,8 +73,36 @@ def run_serve(args: argparse.Namespace) -> int:
     # The ingest thread fuses in numba with the GIL released; a short switch interval lets
     # it take the GIL back promptly from the busy event loop (Python's default is 5 ms).
     sys.setswitchinterval(0.0005)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning")
+    uvicorn.Server(uvicorn_config(app, settings)).run()
     return 0
+
+
+def uvicorn_config(app: Any, settings: Settings) -> Any:
+    """uvicorn's config for ``app`` with the ``server`` section's bounds (timeouts [s],
+    connections), logging at WARNING through a RateLimitFilter on every handler."""
+    import uvicorn
+
+    from mapserver import lograte
+    from mapserver.api.http_protocol import with_head_timeout
+
+    server = settings.server
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level="warning",
+        http=with_head_timeout(server.header_timeout_s),
+        timeout_keep_alive=server.keep_alive_s,  # type: ignore[arg-type]  # float works
+        limit_concurrency=server.max_connections,
+        timeout_graceful_shutdown=server.shutdown_timeout_s,  # type: ignore[arg-type]
+    )
+    # uvicorn configured its loggers above; the app's (mapserver.*, planner.*) reach root.
+    if not logging.getLogger().handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s:%(name)s: %(message)s"))
+        logging.getLogger().addHandler(handler)
+    lograte.install(server.log_burst, server.log_interval_s, ("", "uvicorn", "uvicorn.access"))
+    return config
 
 
 def run_replay(args: argparse.Namespace) -> int:

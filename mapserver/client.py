@@ -136,6 +136,7 @@ _REQUEST_ERRORS: dict[int, type[MapRequestError]] = {
     403: Forbidden,
     409: Conflict,
     413: InvalidRequest,
+    415: InvalidRequest,
     422: InvalidRequest,
 }
 

@@ -153,7 +153,7 @@ def mark_scan(
         a = sensor_yaw + angle_min + i * angle_increment
         ex = sensor_x + r * math.cos(a)
         ey = sensor_y + r * math.sin(a)
-        if ex < xmin or ey < ymin or ex >= xmax or ey >= ymax:
+        if not (ex >= xmin and ey >= ymin and ex < xmax and ey < ymax):  # NaN: off too
             continue
         c = int(math.floor((ex - origin_x) * inv_res))
         rr = int(math.floor((ey - origin_y) * inv_res))
@@ -180,6 +180,8 @@ def mark_scan(
         a = sensor_yaw + angle_min + i * angle_increment
         ex = sensor_x + length * math.cos(a)
         ey = sensor_y + length * math.sin(a)
+        if not (math.isfinite(ex) and math.isfinite(ey)):
+            continue  # no direction (an infinite angle): the beam says nothing
         ok, t0, t1 = clip_segment(sensor_x, sensor_y, ex, ey, xmin, ymin, xmax, ymax)
         if not ok:
             continue

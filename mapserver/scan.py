@@ -40,6 +40,12 @@ it says nothing about where the sensor was, and its square would overflow the fu
 pose weighting (1e200 did: one scan could then stop the whole server)."""
 
 
+MAX_ANGLE = 1e6
+"""Largest ``|pose.yaw|`` and ``|angle_min|`` [rad] accepted: unwrapped headings of a
+unit that has turned many times are fine, but past this a float64 angle has lost its
+meaning (and at 1.7e308 their sum is infinite: the beams have no direction)."""
+
+
 class ScanError(ValueError):
     """A scan field is missing or invalid; ``field`` is its dotted path, ``value`` the value."""
 
@@ -147,7 +153,7 @@ class Scan:
         pose = Pose2D(
             x=_finite(pose_data, "x", "pose."),
             y=_finite(pose_data, "y", "pose."),
-            yaw=_finite(pose_data, "yaw", "pose."),
+            yaw=_finite(pose_data, "yaw", "pose.", -MAX_ANGLE, maximum=MAX_ANGLE),
         )
         pose_std = None
         if data.get("pose_std") is not None:
@@ -156,7 +162,7 @@ class Scan:
                 xy=_finite(std_data, "xy", "pose_std.", 0.0, 0.0, MAX_POSE_STD),
                 yaw=_finite(std_data, "yaw", "pose_std.", 0.0, 0.0, MAX_POSE_STD),
             )
-        angle_min = _finite(data, "angle_min")
+        angle_min = _finite(data, "angle_min", minimum=-MAX_ANGLE, maximum=MAX_ANGLE)
         angle_increment = _finite(data, "angle_increment")
         if not angle_increment > 0:
             raise ScanError("angle_increment", angle_increment, "must be positive")

@@ -18,9 +18,11 @@ for the rules that join them, ``read_ros_map`` for ``map_yaml``): their error be
 pydantic error at the field it names, e.g. ``sensor_model.p_hit``. ``load_settings``
 turns all problems into one ``SettingsError`` with one line per problem.
 
-Security: bearer tokens with roles (``unit`` posts scans, ``reader`` reads, ``admin``
-does both and more). With no token configured the server is open, and an open server may
-only bind a loopback address (127.0.0.0/8, ::1, ``localhost``).
+Security: bearer tokens with roles (``unit`` posts scans and unit states as the units it
+lists, ``reader`` reads, ``admin`` does both, as any unit). With no token configured the
+server is open, and an open server may only bind a loopback address (127.0.0.0/8, ::1,
+``localhost``) and answers only loopback Host and Origin headers. ``limits`` and
+``server`` bound what one client can take: docs/server-safety.md lists them.
 """
 
 from __future__ import annotations
@@ -183,11 +185,57 @@ class InflationSettings(_DomainSection):
 
 
 class TokenSettings(_Section):
-    """One bearer token: the secret, its role, and a name for logs (never the secret)."""
+    """One bearer token: the secret, its role, and a name for logs and errors (never the
+    secret; ``tokens[i]`` when not given).
+
+    units: the unit ids a ``unit`` token may post scans and unit states as: exact ids
+        (``"u1"``), prefixes ending in ``*`` (``"dock-a-*"``: every id starting with
+        ``dock-a-``) or ``"*"`` (any unit, e.g. one simulator posting for its whole fleet).
+        Required for ``unit`` tokens (a token that forgot its units is refused at load
+        rather than silently allowed to post as anyone); not allowed for ``reader``
+        (posts nothing) or ``admin`` (posts as any unit).
+    """
 
     token: SecretStr
     role: Role
     name: str | None = None
+    units: list[str] | None = None
+
+    @field_validator("units")
+    @classmethod
+    def _units_are_ids_or_prefixes(cls, value: list[str] | None) -> list[str] | None:
+        for pattern in value or ():
+            if not pattern or "*" in pattern[:-1] or pattern != pattern.strip():
+                raise PydanticCustomError(
+                    "units",
+                    "each entry must be a unit id, a prefix ending in '*', or '*', got {pattern}",
+                    {"pattern": repr(pattern)},
+                )
+        return value
+
+    @model_validator(mode="after")
+    def _units_match_role(self) -> TokenSettings:
+        if self.role is Role.UNIT and not self.units:
+            raise _error(
+                ("units",),
+                self.units,
+                "a unit token must list the unit ids it may post as "
+                '(e.g. ["u1", "u2"], ["u*"] for a prefix, ["*"] for any unit)',
+            )
+        if self.role is not Role.UNIT and self.units is not None:
+            raise _error(
+                ("units",), self.units, f"only unit tokens are bound to units, not {self.role}"
+            )
+        return self
+
+    def may_post_as(self, unit_id: str) -> bool:
+        """True when this token may post scans and unit states for ``unit_id``."""
+        if self.role is Role.ADMIN:
+            return True
+        return any(
+            unit_id.startswith(p[:-1]) if p.endswith("*") else unit_id == p
+            for p in self.units or ()
+        )
 
     @field_validator("token")
     @classmethod
@@ -240,6 +288,36 @@ class ReadSettings(_Section):
     nice: int = Field(default=10, ge=0, le=19)
 
 
+class ServerSettings(_Section):
+    """How ``fleetmap serve`` treats connections and its log (docs/server-safety.md).
+
+    keep_alive_s: [s] an idle keep-alive connection is closed this long after its last
+        response.
+    header_timeout_s: [s] a connection is closed when a request's line and headers have not
+        all arrived this long after it opened or after its previous response (slow or
+        silent clients: uvicorn itself waits forever).
+    body_timeout_s: [s] a request whose body has not all arrived this long after its
+        headers is answered 408.
+    max_connections: open connections at most; a request arriving past it is answered
+        503 by uvicorn.
+    shutdown_timeout_s: [s] on SIGTERM the server stops accepting, lets requests in flight
+        finish for at most this long, then cancels them and exits.
+    local_hostnames: Host names an open server (no tokens) accepts besides ``localhost``
+        and loopback addresses, e.g. a name that /etc/hosts points at 127.0.0.1.
+    log_burst, log_interval_s [s]: at most ``log_burst`` log records per message template
+        per ``log_interval_s``; the next one after that names how many were suppressed.
+    """
+
+    keep_alive_s: float = Field(default=5.0, gt=0, le=3600, allow_inf_nan=False)
+    header_timeout_s: float = Field(default=10.0, gt=0, le=3600, allow_inf_nan=False)
+    body_timeout_s: float = Field(default=30.0, gt=0, le=3600, allow_inf_nan=False)
+    max_connections: int = Field(default=512, gt=0)
+    shutdown_timeout_s: float = Field(default=10.0, gt=0, le=3600, allow_inf_nan=False)
+    local_hostnames: list[str] = []
+    log_burst: int = Field(default=20, gt=0)
+    log_interval_s: float = Field(default=60.0, gt=0, allow_inf_nan=False)
+
+
 class JournalSettings(_Section):
     """Durability and history.
 
@@ -276,8 +354,9 @@ class Settings(BaseSettings):
     inflation: how lethal cells inflate into the costmap.
     max_clearing_range: [m] cap on how far a no-return beam clears (None: the scan's
         own range_max).
-    tokens: bearer tokens; none means an open server on loopback only.
-    limits, clock, reads, journal: see their sections.
+    tokens: bearer tokens (``TokenSettings``); none means an open server on loopback only,
+        which accepts only requests whose Host is loopback and whose Origin, if any, is.
+    limits, clock, reads, server, journal: see their sections.
     """
 
     model_config = SettingsConfigDict(
@@ -301,6 +380,7 @@ class Settings(BaseSettings):
     limits: LimitsSettings = LimitsSettings()
     clock: ClockSettings = ClockSettings()
     reads: ReadSettings = ReadSettings()
+    server: ServerSettings = ServerSettings()
     journal: JournalSettings = JournalSettings()
 
     _static_map: RosMap | None = PrivateAttr(default=None)
@@ -368,7 +448,15 @@ class Settings(BaseSettings):
 
     def token_roles(self) -> dict[str, Role]:
         """Each configured token's secret -> its role."""
-        return {t.token.get_secret_value(): t.role for t in self.tokens}
+        return {secret: t.role for secret, t in self.token_table().items()}
+
+    def token_table(self) -> dict[str, TokenSettings]:
+        """Each configured token's secret -> its settings, ``name`` filled in
+        (``tokens[i]`` when the config gave none)."""
+        return {
+            t.token.get_secret_value(): t.model_copy(update={"name": t.name or f"tokens[{i}]"})
+            for i, t in enumerate(self.tokens)
+        }
 
     def static_map(self) -> RosMap | None:
         """The map read from ``map_yaml`` at validation, or None without one."""

@@ -10,10 +10,18 @@ from mapserver.settings import Settings, load_settings
 from scenarios.embedded_server import EmbeddedServer
 
 GRID = {"width": 200, "height": 100, "resolution": 0.1}  # 20 m x 10 m
+JSON = {"content-type": "application/json"}  # what every POST must declare
+
+
+# TestClient's requests carry ``Host: testserver``; an open server accepts it only as a
+# configured local name.
+TEST_SERVER = {"local_hostnames": ["testserver"]}
 
 
 def small_settings(data_dir: Path, **overrides) -> Settings:
-    return load_settings(None, {"data_dir": data_dir, "grid": GRID, **overrides})
+    return load_settings(
+        None, {"data_dir": data_dir, "grid": GRID, "server": TEST_SERVER, **overrides}
+    )
 
 
 def scan_body(stamp: float = 1.0, unit: str = "u1", x: float = 5.0, y: float = 5.0, **fields):

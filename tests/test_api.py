@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from server_helpers import scan_body, small_settings
+from server_helpers import JSON, scan_body, small_settings
 
 from mapserver.api.app import create_app
 from mapserver.client import MapClient
@@ -14,7 +14,7 @@ from mapserver.costvalues import LETHAL, UNKNOWN
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
 TOKENS = [
-    {"token": UNIT, "role": "unit"},
+    {"token": UNIT, "role": "unit", "units": ["u*"]},
     {"token": READER, "role": "reader"},
     {"token": ADMIN, "role": "admin"},
 ]
@@ -86,7 +86,7 @@ def test_bad_scans_get_their_4xx_and_change_nothing(open_client, name, corrupt, 
     before = state(open_client)
     body = scan_body(stamp=2.0)
     corrupt(body)
-    reply = open_client.post("/v1/scans", content=json.dumps(body))
+    reply = open_client.post("/v1/scans", content=json.dumps(body), headers=JSON)
     assert reply.status_code == status, reply.text
     assert reply.json()["detail"].startswith(field)
     assert state(open_client) == before
@@ -104,13 +104,13 @@ def test_a_huge_body_is_refused_before_it_is_read(open_client):
     before = state(open_client)
     body = scan_body(ranges=[1.0] * 15000)  # ~ 60 kB ... beyond the 200 kB limit below
     body["padding"] = "x" * 300_000
-    reply = open_client.post("/v1/scans", content=json.dumps(body))
+    reply = open_client.post("/v1/scans", content=json.dumps(body), headers=JSON)
     assert reply.status_code == 413 and reply.json()["detail"].startswith("body")
     assert state(open_client) == before
 
 
 def test_malformed_json_is_a_400(open_client):
-    reply = open_client.post("/v1/scans", content=b"{not json")
+    reply = open_client.post("/v1/scans", content=b"{not json", headers=JSON)
     assert reply.status_code == 400 and reply.json()["detail"].startswith("body")
 
 

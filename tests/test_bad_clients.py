@@ -98,28 +98,49 @@ def test_a_retry_returns_the_original_ack_and_journals_nothing(data_dir):
         assert client.app.state.service.journal.last_seq() == 4
 
 
-def test_unknown_fields_are_not_journaled(data_dir):
-    deep = '{"x":' * 1000 + "{}" + "}" * 1000  # nested 1000 deep: json.dumps cannot write it
-    body = json.dumps(scan_body(stamp=1.0, note="hi"))[:-1] + ', "extra": ' + deep + "}"
+def test_unknown_fields_are_not_journaled_and_deep_nesting_is_refused(data_dir):
+    nested = '{"x":' * 20 + "{}" + "}" * 20
+    deep = '{"x":' * 1000 + "{}" + "}" * 1000  # json.dumps could not even write it back
     with app_on(data_dir) as client:
-        reply = client.post("/v1/scans", content=body, headers={"Content-Type": "application/json"})
-        assert reply.status_code == 200
+
+        def post(extra):
+            body = json.dumps(scan_body(stamp=1.0, note="hi"))[:-1] + ', "extra": ' + extra + "}"
+            return client.post(
+                "/v1/scans", content=body, headers={"Content-Type": "application/json"}
+            )
+
+        refused = post(deep)
+        assert refused.status_code == 400 and refused.json()["detail"].startswith("body")
+        assert client.app.state.service.journal.last_seq() == 0
+        assert post(nested).status_code == 200
         (seq, stored), *_ = client.app.state.service.journal.scans_after(0)
     assert "extra" not in stored and "note" not in stored
     assert Scan.from_dict(stored).digest() == Scan.from_dict(scan_body(stamp=1.0)).digest()
 
 
 @pytest.mark.parametrize(
-    "field, value",
-    [("stamp", 10**400), ("pose", {"x": 10**400, "y": 5.0, "yaw": 0.0}), ("range_max", True)],
+    "field, value, status, detail",
+    [
+        ("stamp", 10**400, 400, "body: not valid JSON (integer 1000"),
+        ("pose", {"x": 10**400, "y": 5.0, "yaw": 0.0}, 400, "body: not valid JSON (integer"),
+        ("range_max", True, 422, "range_max: must be a finite number, got True"),
+    ],
 )
-def test_numbers_beyond_float_range_and_booleans_are_refused_by_name(data_dir, field, value):
+def test_numbers_beyond_float_range_and_booleans_are_refused(
+    data_dir, field, value, status, detail
+):
     with app_on(data_dir) as client:
         body = json.dumps(scan_body(**{field: value}))
         reply = client.post("/v1/scans", content=body, headers={"Content-Type": "application/json"})
-        assert reply.status_code == 422
-        assert reply.json()["detail"].startswith(field)
+        assert reply.status_code == status
+        assert reply.json()["detail"].startswith(detail)
         assert client.app.state.service.journal.last_seq() == 0
+
+
+@pytest.mark.parametrize("field", ["stamp", "angle_min", "range_max"])
+def test_a_scan_file_number_beyond_float_range_is_refused_by_name(field):
+    with pytest.raises(ValueError, match=rf"^{field}: must be a finite number"):
+        Scan.from_dict(scan_body(**{field: 10**400}))
 
 
 def test_a_range_beyond_float_range_is_refused_by_index():

@@ -2,14 +2,14 @@
 leaves every cell finite, however extreme its numbers (so the journal never holds a scan
 the server cannot replay)."""
 
-
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from mapserver.belief import BeliefGrid
 from mapserver.geometry import GridGeometry
-from mapserver.scan import MAX_POSE_STD, Scan, ScanError
+from mapserver.scan import MAX_POSE_STD, Pose2D, Scan, ScanError
 from mapserver.sensor_model import Policy
 
 GEOMETRY = GridGeometry(60, 40, 0.1)  # 6 m x 4 m
@@ -54,3 +54,31 @@ def test_an_accepted_scan_always_fuses_and_every_cell_stays_finite(body, policy)
     seen = belief.last_observed()
     assert np.isnan(seen[~np.isfinite(seen)]).all()  # a stamp or never observed
     assert np.isfinite(belief.log_odds_at(scan.stamp + 1.0)).all()
+
+
+def test_beams_without_a_direction_change_nothing_in_the_kernel():
+    """Behind validation, the kernel itself: an infinite beam angle (yaw + angle_min past
+    float range) once made it write outside the grid (a segmentation fault)."""
+    scan = Scan(
+        unit_id="u1",
+        stamp=1.0,
+        pose=Pose2D(3.0, 2.0, 1.7e308),
+        angle_min=1.7e308,
+        angle_increment=0.01,
+        range_min=0.0,
+        range_max=10.0,
+        ranges=np.array([1.0, 2.0, 20.0, 3.0]),
+    )
+    belief = BeliefGrid(GEOMETRY)
+    assert belief.fuse(scan).cells == 0
+    assert np.isnan(belief.last_observed()).all()
+
+
+def test_angles_past_a_million_radians_are_refused_by_name():
+    body = {"unit_id": "u1", "stamp": 1.0, "pose": {"x": 1.0, "y": 1.0, "yaw": 1.7e308},
+            "angle_min": 0.0, "angle_increment": 0.1, "range_min": 0.0, "range_max": 5.0,
+            "ranges": [1.0]}  # fmt: skip
+    with pytest.raises(ScanError, match=r"^pose.yaw: must be <= 1e\+06"):
+        Scan.from_dict(body)
+    with pytest.raises(ScanError, match=r"^angle_min: must be >= -1000000"):
+        Scan.from_dict({**body, "pose": {"x": 1.0, "y": 1.0, "yaw": 0.0}, "angle_min": -1e7})

@@ -6,7 +6,7 @@ import threading
 import httpx
 import numpy as np
 import pytest
-from server_helpers import ServerProcess
+from server_helpers import JSON, ServerProcess
 
 from fleet.boxworld import sample_scans, warehouse_layout
 
@@ -27,7 +27,7 @@ def raw(url: str, path: str, at: float) -> bytes:
 def test_a_real_server_fuses_posted_scans_and_serves_them(tmp_path, scans):
     server = ServerProcess(tmp_path / "data")
     try:
-        with httpx.Client(base_url=server.url, timeout=10) as http:
+        with httpx.Client(base_url=server.url, timeout=10, headers=JSON) as http:
             acks = [http.post("/v1/scans", content=json.dumps(body)).json() for body in scans[:20]]
             assert [a["seq"] for a in acks] == list(range(1, 21))
             meta = http.get("/v1/map/meta").json()
@@ -44,7 +44,7 @@ def test_a_restart_on_the_same_data_dir_restores_the_map(tmp_path, scans):
     try:
         for body in scans[:30]:
             httpx.post(
-                server.url + "/v1/scans", content=json.dumps(body), timeout=10
+                server.url + "/v1/scans", content=json.dumps(body), timeout=10, headers=JSON
             ).raise_for_status()
         before = raw(server.url, "/v1/costmap", 100.0)
     finally:
@@ -55,7 +55,10 @@ def test_a_restart_on_the_same_data_dir_restores_the_map(tmp_path, scans):
         assert httpx.get(server.url + "/v1/map/meta").json()["version"] == 30
         # the restarted server still refuses a unit's stamp going backwards
         old = dict(scans[0])
-        assert httpx.post(server.url + "/v1/scans", content=json.dumps(old)).status_code == 409
+        assert (
+            httpx.post(server.url + "/v1/scans", content=json.dumps(old), headers=JSON).status_code
+            == 409
+        )
     finally:
         server.stop()
 
@@ -67,7 +70,7 @@ def test_sigkill_loses_no_acknowledged_scan_and_restarts_to_the_same_map(tmp_pat
     stop = threading.Event()
 
     def post_until_killed():
-        with httpx.Client(base_url=server.url, timeout=10) as http:
+        with httpx.Client(base_url=server.url, timeout=10, headers=JSON) as http:
             for body in scans:
                 if stop.is_set():
                     return
@@ -93,7 +96,7 @@ def test_sigkill_loses_no_acknowledged_scan_and_restarts_to_the_same_map(tmp_pat
         version = httpx.get(restarted.url + "/v1/map/meta").json()["version"]
         assert version >= max(acked)  # every acknowledged scan is in the map
         # Feed a fresh server exactly the scans the restarted one holds, in journal order.
-        with httpx.Client(base_url=fresh.url, timeout=10) as http:
+        with httpx.Client(base_url=fresh.url, timeout=10, headers=JSON) as http:
             for body in scans[:version]:
                 assert http.post("/v1/scans", content=json.dumps(body)).status_code == 200
         at = max(body["stamp"] for body in scans[:version]) + 1.0

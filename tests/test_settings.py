@@ -90,7 +90,7 @@ def test_yaml_file_sets_values_and_keeps_other_defaults(tmp_path: Path) -> None:
             "decay": {"half_life_occupied": 10},
             "inflation": {"inflation_radius": 1.0, "inflate_unknown": True},
             "max_clearing_range": 8.0,
-            "tokens": [{"token": "t-unit", "role": "unit", "name": "robot 1"}],
+            "tokens": [{"token": "t-unit", "role": "unit", "name": "robot 1", "units": ["r1"]}],
             "limits": {"max_batch": 64},
             "journal": {"synchronous": "normal", "snapshot_every_scans": 500},
         },
@@ -196,7 +196,10 @@ def test_token_problems_never_print_the_secret() -> None:
     (line,) = problems(tokens=[{"token": "my secret", "role": "admin"}])
     assert line.startswith("tokens[0].token:") and "my secret" not in line
     (line,) = problems(
-        tokens=[{"token": "same", "role": "unit"}, {"token": "same", "role": "admin"}]
+        tokens=[
+            {"token": "same", "role": "unit", "units": ["*"]},
+            {"token": "same", "role": "admin"},
+        ]
     )
     assert line.startswith("tokens[1].token: duplicates") and "same" not in line
 
@@ -255,7 +258,7 @@ def test_other_hosts_are_not_loopback(host: str) -> None:
 
 
 def test_token_secrets_stay_out_of_repr() -> None:
-    s = load_settings(None, {"tokens": [{"token": "hunter22", "role": "unit"}]})
+    s = load_settings(None, {"tokens": [{"token": "hunter22", "role": "unit", "units": ["*"]}]})
     assert "hunter22" not in repr(s)
 
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 from fastapi.testclient import TestClient
-from server_helpers import small_settings
+from server_helpers import JSON, small_settings
 
 from mapserver.api.app import create_app
 from mapserver.api.unit_board import UnitBoard, UnitBoardError
@@ -15,7 +15,7 @@ from mapserver.scan import Pose2D
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
 TOKENS = [
-    {"token": UNIT, "role": "unit"},
+    {"token": UNIT, "role": "unit", "units": ["u*"]},
     {"token": READER, "role": "reader"},
     {"token": ADMIN, "role": "admin"},
 ]
@@ -81,7 +81,7 @@ BAD_POSTS = [
 def test_a_bad_post_names_the_field_and_changes_nothing(client, name, body, status, field):
     assert client.post("/v1/units", json={"units": [unit()]}, headers=auth(UNIT)).status_code == 200
     before = board(client)
-    reply = client.post("/v1/units", content=json.dumps(body), headers=auth(UNIT))
+    reply = client.post("/v1/units", content=json.dumps(body), headers=auth(UNIT) | JSON)
     assert reply.status_code == status, reply.text
     assert reply.json()["detail"].startswith(field), reply.json()
     assert board(client) == before
@@ -90,7 +90,7 @@ def test_a_bad_post_names_the_field_and_changes_nothing(client, name, body, stat
 def test_malformed_json_is_a_400_and_an_oversized_body_a_413(tmp_path):
     settings = small_settings(tmp_path / "d", limits={"max_body_bytes": 10_000})
     with TestClient(create_app(settings)) as client:
-        assert client.post("/v1/units", content=b"{units").status_code == 400
+        assert client.post("/v1/units", content=b"{units", headers=JSON).status_code == 400
         huge = {"units": [unit(path=[[1.0, 2.0]] * 2000)]}
         reply = client.post("/v1/units", json=huge)
         assert reply.status_code == 413 and reply.json()["detail"].startswith("body")

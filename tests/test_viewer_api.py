@@ -67,7 +67,7 @@ def test_bad_age_parameters_name_the_field(client, params, field):
 
 
 def test_ages_need_a_reader_token_but_the_page_needs_none(tmp_path):
-    tokens = [{"token": READER, "role": "reader"}, {"token": UNIT, "role": "unit"}]
+    tokens = [{"token": READER, "role": "reader"}, {"token": UNIT, "role": "unit", "units": ["*"]}]
     with TestClient(create_app(small_settings(tmp_path / "d", tokens=tokens))) as client:
         assert client.get("/v1/map/age?format=raw").status_code == 401
         unit = {"Authorization": f"Bearer {UNIT}"}

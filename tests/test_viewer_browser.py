@@ -46,7 +46,7 @@ def chromium():
 def server(tmp_path_factory):
     folder = tmp_path_factory.mktemp("viewer-server")
     config = folder / "server.yaml"
-    tokens = [{"token": UNIT, "role": "unit"}, {"token": READER, "role": "reader"}]
+    tokens = [{"token": UNIT, "role": "unit", "units": ["*"]}, {"token": READER, "role": "reader"}]
     config.write_text(json.dumps({"tokens": tokens}))
     process = ServerProcess(folder / "data", config=config)
     with httpx.Client(base_url=process.url) as http:

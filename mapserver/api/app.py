@@ -28,8 +28,18 @@ from mapserver.api import (
     routes_viewer,
 )
 from mapserver.api.admission import Admission
-from mapserver.api.metrics import ServerMetrics
-from mapserver.api.schemas import CellsIn, PlanIn, ScanBatchIn, ScanIn, SegmentsIn, UnitsIn
+from mapserver.api.body import quote
+from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
+from mapserver.api.metrics import ServerMetrics, method_label
+from mapserver.api.schemas import (
+    CellsIn,
+    ErrorOut,
+    PlanIn,
+    ScanBatchIn,
+    ScanIn,
+    SegmentsIn,
+    UnitsIn,
+)
 from mapserver.api.unit_board import UnitBoard
 from mapserver.service import MapService
 from mapserver.settings import Settings
@@ -55,7 +65,7 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.settings = settings
     app.state.service = service
     app.state.metrics = ServerMetrics(service)
-    app.state.token_roles = settings.token_roles()
+    app.state.tokens = settings.token_table()
     app.state.units = UnitBoard()
     reads = settings.reads
     app.state.query_admission = Admission(
@@ -71,15 +81,30 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
     for module in (*routers, routes_viewer):
         app.include_router(module.router)
-    _add_body_schemas(app)
+    _complete_openapi(app)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
-    app.add_middleware(LatencyMiddleware, metrics=app.state.metrics)
+    app.add_middleware(BodyMiddleware, settings=settings)
+    app.add_middleware(LocalOnlyMiddleware, settings=settings)
+    app.add_middleware(LatencyMiddleware, metrics=app.state.metrics)  # outermost: sees all
     return app
 
 
-def _add_body_schemas(app: FastAPI) -> None:
-    """Publish the body models of the routes that read raw JSON (all POST routes)."""
+# What the edge (``guards``) may answer any operation, and any operation with a body.
+EDGE_RESPONSES = {
+    "403": "an open server refuses a foreign Host or Origin; a token may not do this",
+    "408": "the body did not all arrive within server.body_timeout_s",
+    "413": "the body is larger than limits.max_body_bytes",
+}
+BODY_RESPONSES = {
+    "400": "the body is not JSON, nests too deep or holds an integer beyond the float range",
+    "415": "the body is not declared Content-Type: application/json",
+}
+
+
+def _complete_openapi(app: FastAPI) -> None:
+    """Publish the body models of the routes that read raw JSON (every POST route) and the
+    edge's refusals on every operation (so the schema lists every status it can send)."""
     build = app.openapi
 
     def openapi() -> dict[str, Any]:
@@ -90,18 +115,29 @@ def _add_body_schemas(app: FastAPI) -> None:
                 model_schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
                 components.update(model_schema.pop("$defs", {}))
                 components[model.__name__] = model_schema
+            components.setdefault("ErrorOut", ErrorOut.model_json_schema())
+            for path in schema.get("paths", {}).values():
+                for method, operation in path.items():
+                    edge = {**EDGE_RESPONSES, **(BODY_RESPONSES if method == "post" else {})}
+                    _add_errors(operation.setdefault("responses", {}), edge)
             app.openapi_schema = schema
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
 
 
+def _add_errors(responses: dict[str, Any], errors: dict[str, str]) -> None:
+    """Add each ``status: description`` not yet documented, with an ErrorOut body."""
+    body = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorOut"}}}
+    for status, description in errors.items():
+        responses.setdefault(status, {"description": description, "content": body})
+
+
 async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
     """422 naming the first offending field (its location) and value."""
     first = exc.errors()[0]
     where = ".".join(str(part) for part in first.get("loc", ()) if part != "body") or "body"
-    value = first.get("input")
-    detail = f"{where}: {first.get('msg', 'invalid')}, got {value!r:.80}"
+    detail = f"{where}: {first.get('msg', 'invalid')}, got {quote(first.get('input'))}"
     return JSONResponse({"detail": detail}, status_code=422)
 
 
@@ -112,7 +148,8 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResp
 
 class LatencyMiddleware:
     """Observes each HTTP request's latency [s] by method, route template and status
-    (plain ASGI: Starlette's BaseHTTPMiddleware costs more than a scan's fusion)."""
+    (plain ASGI: Starlette's BaseHTTPMiddleware costs more than a scan's fusion). Labels
+    are bounded: a made-up method is ``OTHER``, a path no route matches ``unmatched``."""
 
     def __init__(self, app: ASGIApp, metrics: ServerMetrics) -> None:
         self.app = app
@@ -135,6 +172,7 @@ class LatencyMiddleware:
             await self.app(scope, receive, send_and_record)
         finally:
             route = getattr(scope.get("route"), "path", "unmatched")
-            self.metrics.request_latency.labels(scope["method"], route, str(status)).observe(
+            method = method_label(scope["method"])
+            self.metrics.request_latency.labels(method, route, str(status)).observe(
                 time.perf_counter() - start
             )

@@ -8,6 +8,15 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from mapserver.service import MapService
 
 LATENCY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+METHODS = frozenset(
+    {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE", "CONNECT"}
+)
+
+
+def method_label(method: str) -> str:
+    """``method`` for a standard HTTP method, else ``OTHER``: a client inventing methods
+    must not make a new metrics series each (a label's values stay bounded)."""
+    return method if method in METHODS else "OTHER"
 
 
 class ServerMetrics:

@@ -7,8 +7,8 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
 
-from mapserver.api.auth import WRITE, require
-from mapserver.api.body import body_schema, read_json
+from mapserver.api.auth import WRITE, require, require_unit
+from mapserver.api.body import body_schema, quote, read_json
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.scan import Scan, ScanError
 from mapserver.service import IngestError, MapService
@@ -18,11 +18,14 @@ router = APIRouter(tags=["scans"])
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 503)}
 
 
-def _parse(item: Any, prefix: str, max_beams: int) -> Scan:
+def _parse(request: Request, item: Any, prefix: str) -> Scan:
+    """The scan in ``item`` (422 naming ``prefix`` + field), one the token may post (403)."""
     try:
-        return Scan.from_dict(item, max_beams=max_beams)
+        scan = Scan.from_dict(item, max_beams=request.app.state.settings.limits.max_beams)
     except ScanError as exc:
         raise HTTPException(422, f"{prefix}{exc}") from None
+    require_unit(request, scan.unit_id, f"{prefix}unit_id")
+    return scan
 
 
 async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
@@ -47,7 +50,7 @@ async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
 )
 async def post_scan(request: Request) -> ScanAck:
     body = await read_json(request)
-    scan = _parse(body, "", request.app.state.settings.limits.max_beams)
+    scan = _parse(request, body, "")
     (ack,) = await _submit(request, [scan])
     return ScanAck(seq=ack.seq, map_version=ack.map_version)
 
@@ -65,9 +68,9 @@ async def post_scans(request: Request) -> ScanBatchAck:
     limits = request.app.state.settings.limits
     items = body.get("scans") if isinstance(body, dict) else None
     if not isinstance(items, list) or not items:
-        raise HTTPException(422, f"scans: must be a non-empty list of scans, got {items!r:.80}")
+        raise HTTPException(422, f"scans: must be a non-empty list of scans, got {quote(items)}")
     if len(items) > limits.max_batch:
         raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
-    scans = [_parse(item, f"scans[{i}].", limits.max_beams) for i, item in enumerate(items)]
+    scans = [_parse(request, item, f"scans[{i}].") for i, item in enumerate(items)]
     acks = await _submit(request, scans)
     return ScanBatchAck(acks=[ScanAck(seq=a.seq, map_version=a.map_version) for a in acks])

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
-from mapserver.api.auth import READ, WRITE, require
+from mapserver.api.auth import READ, WRITE, require, require_unit
 from mapserver.api.body import body_schema, read_json
 from mapserver.api.schemas import ErrorOut, UnitsAck, UnitsIn, UnitsOut
 from mapserver.api.unit_board import UnitBoardError
@@ -29,6 +29,8 @@ async def post_units(request: Request) -> UnitsAck:
         posted = UnitsIn.model_validate(body)
     except ValidationError as exc:
         raise RequestValidationError(exc.errors(include_url=False)) from None
+    for i, state in enumerate(posted.units):
+        require_unit(request, state.unit_id, f"units[{i}].unit_id")
     try:
         tracked = request.app.state.units.publish(posted.units)
     except UnitBoardError as exc:

@@ -2,6 +2,9 @@
 
 Scan bodies are documented with ``ScanIn`` but validated by ``Scan.from_dict``, the one
 validator of scans, so errors read the same from every source.
+
+Numbers in request bodies are strict: an integer is a number, ``true`` is not (pydantic
+would otherwise read it as 1.0); booleans are only ``true``/``false``.
 """
 
 from __future__ import annotations
@@ -10,7 +13,9 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+Number = Annotated[float, Field(strict=True)]  # int or float; not a bool, not a string
+Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+Flag = Annotated[bool, Field(strict=True)]  # true or false; not 1, not "yes"
 MAX_QUERY_ITEMS = 100_000
 MAX_UNITS_PER_POST = 1024
 MAX_PATH_POINTS = 10_000
@@ -19,29 +24,29 @@ MAX_REASON_CHARS = 200
 
 
 class PoseIn(BaseModel):
-    x: float = Field(description="[m] sensor x in the map frame")
-    y: float = Field(description="[m] sensor y in the map frame")
-    yaw: float = Field(description="[rad] counter-clockwise from +x")
+    x: Number = Field(description="[m] sensor x in the map frame")
+    y: Number = Field(description="[m] sensor y in the map frame")
+    yaw: Number = Field(ge=-1e6, le=1e6, description="[rad] counter-clockwise from +x")
 
 
 class PoseStdIn(BaseModel):
-    xy: float = Field(0.0, ge=0, le=1e3, description="[m] position standard deviation")
-    yaw: float = Field(0.0, ge=0, le=1e3, description="[rad] heading standard deviation")
+    xy: Number = Field(0.0, ge=0, le=1e3, description="[m] position standard deviation")
+    yaw: Number = Field(0.0, ge=0, le=1e3, description="[rad] heading standard deviation")
 
 
 class ScanIn(BaseModel):
     """One planar LiDAR scan (CONTRACT 2.1); ranges follow REP 117."""
 
     unit_id: str = Field(min_length=1)
-    stamp: float = Field(description="[s] time used for freshness and decay")
+    stamp: Number = Field(description="[s] time used for freshness and decay")
     frame: Literal["map"] = "map"
     pose: PoseIn
     pose_std: PoseStdIn | None = None
-    angle_min: float = Field(description="[rad] first beam, relative to pose.yaw")
-    angle_increment: float = Field(gt=0, description="[rad] between beams")
-    range_min: float = Field(ge=0, description="[m]")
-    range_max: float = Field(gt=0, description="[m]")
-    ranges: list[float | None] = Field(
+    angle_min: Number = Field(ge=-1e6, le=1e6, description="[rad] first beam, relative to pose.yaw")
+    angle_increment: Number = Field(gt=0, description="[rad] between beams")
+    range_min: Number = Field(ge=0, description="[m]")
+    range_max: Number = Field(gt=0, description="[m]")
+    ranges: list[Number | None] = Field(
         min_length=1,
         description="[m] per beam: a return, > range_max or Infinity for no return, null invalid",
     )
@@ -160,7 +165,7 @@ class PlanIn(BaseModel):
     start: tuple[Finite, Finite] = Field(description="[x, y] [m]")
     goal: tuple[Finite, Finite] = Field(description="[x, y] [m]")
     algorithm: Literal["astar", "dijkstra"] = "astar"
-    allow_unknown: bool = True
+    allow_unknown: Flag = True
     unit_id: str | None = Field(None, description="who asks (for logs)")
 
 
