@@ -12,7 +12,10 @@ injected ``httpx.Client`` whose ``base_url`` names the server, so tests pass an
         costs = client.follow_costmap(costs)         # ... then only the changed patches
 
 The client never closes, configures or mutates the injected ``httpx.Client``; it adds the
-``Authorization: Bearer TOKEN`` header and an explicit timeout [s] to each request.
+``Authorization: Bearer TOKEN`` header and an explicit timeout [s] to each request. A
+reply that says "try later" (429, the server's reads are saturated, or 503) is retried up
+to ``retries`` times after its ``Retry-After`` [s] (1 s without one, at most
+``max_retry_wait_s``); every request of the API may be repeated safely.
 
 Errors - every failure raises a subclass of ``MapClientError``; each names the endpoint
 (``"POST /v1/scans"``) and carries the offending value:
@@ -22,7 +25,8 @@ Errors - every failure raises a subclass of ``MapClientError``; each names the e
   - ``MapServerUnavailable`` - no reply: connection refused or dropped, or a timeout.
     Wraps the ``httpx.TransportError`` (``cause``). After this error on ``post_scan`` the
     scan may or may not be durable: only a received ``ScanAck`` promises it. Re-sending
-    is safe against 409 (the stamp is not older) but may fuse the scan twice.
+    the very same scan is safe: the server answers a retry with the original ack and
+    fuses it once (another scan at the same stamp is a 409).
   - ``MapRequestError`` - the server refused the request (any 4xx; nothing changed).
     ``status`` and ``detail`` (the ``{"detail": ...}`` of the body, or the body text).
 
@@ -56,7 +60,8 @@ from __future__ import annotations
 import json
 import math
 import numbers
-from collections.abc import Iterable, Mapping, Sequence
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -301,10 +306,19 @@ class MapClient:
     token: bearer token sent as ``Authorization: Bearer TOKEN`` (None: no header).
     timeout: per-request timeout [s], or an ``httpx.Timeout``; passed explicitly on every
     request so the injected client's default never applies.
+    retries: how many times a 429 or 503 reply is retried (0: never).
+    max_retry_wait_s: [s] the longest wait before a retry, whatever ``Retry-After`` says.
+    sleep: how to wait [s] (``time.sleep``; a parameter for tests).
     """
 
     def __init__(
-        self, http: httpx.Client, token: str | None = None, timeout: httpx.Timeout | float = 5.0
+        self,
+        http: httpx.Client,
+        token: str | None = None,
+        timeout: httpx.Timeout | float = 5.0,
+        retries: int = 2,
+        max_retry_wait_s: float = 5.0,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         if not http.base_url.host:
             raise ValueError(
@@ -318,9 +332,16 @@ class MapClient:
             if not (math.isfinite(timeout) and timeout > 0):
                 raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
             timeout = httpx.Timeout(float(timeout))
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+        if not (isinstance(max_retry_wait_s, int | float) and max_retry_wait_s >= 0):
+            raise ValueError(f"max_retry_wait_s must be >= 0 seconds, got {max_retry_wait_s!r}")
         self._http = http
         self._headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
         self._timeout = timeout
+        self._retries = retries
+        self._max_retry_wait_s = float(max_retry_wait_s)
+        self._sleep = sleep
 
     # -- scans (2.1)
 
@@ -560,12 +581,17 @@ class MapClient:
             else:
                 content = json.dumps(body, separators=(",", ":")).encode()
             headers["Content-Type"] = "application/json"
-        try:
-            response = self._http.request(
-                method, path, params=params, content=content, headers=headers, timeout=self._timeout
-            )
-        except httpx.TransportError as exc:
-            raise MapServerUnavailable(endpoint, exc) from exc
+        for attempt in range(self._retries + 1):
+            try:
+                response = self._http.request(
+                    method, path, params=params, content=content, headers=headers,
+                    timeout=self._timeout,
+                )  # fmt: skip
+            except httpx.TransportError as exc:
+                raise MapServerUnavailable(endpoint, exc) from exc
+            if response.status_code not in (429, 503) or attempt == self._retries:
+                break
+            self._sleep(self._retry_wait(response))
         status = response.status_code
         if 200 <= status < 300:
             return response
@@ -574,6 +600,14 @@ class MapClient:
         if status >= 500:
             raise MapServerError(endpoint, status, _detail(response))
         raise MapProtocolError(endpoint, "unexpected HTTP status", status)
+
+    def _retry_wait(self, response: httpx.Response) -> float:
+        """[s] to wait before retrying ``response``: its Retry-After (seconds), capped."""
+        try:
+            wait = float(response.headers.get("Retry-After", "1"))
+        except ValueError:  # an HTTP date or garbage: the default
+            wait = 1.0
+        return min(max(wait, 0.0), self._max_retry_wait_s) if math.isfinite(wait) else 1.0
 
     def _json(
         self,

@@ -594,6 +594,7 @@ def refuse(request: httpx.Request) -> httpx.Response:
         (409, Conflict),
         (413, InvalidRequest),
         (422, InvalidRequest),
+        (429, MapRequestError),
         (500, MapServerError),
         (503, MapServerError),
     ],
@@ -601,7 +602,7 @@ def refuse(request: httpx.Request) -> httpx.Response:
 def test_each_error_status_maps_to_its_exception_carrying_status_and_detail(status, error):
     detail = f"stamp: went backwards, got 3.0 (status {status})"
     transport = httpx.MockTransport(lambda r: httpx.Response(status, json={"detail": detail}))
-    client = MapClient(httpx.Client(transport=transport, base_url=BASE))
+    client = MapClient(httpx.Client(transport=transport, base_url=BASE), retries=0)
     with pytest.raises(error) as err:
         client.post_scan(make_scan([1.0], stamp=3.0))
     assert type(err.value) is error
@@ -690,3 +691,42 @@ def test_a_timeout_object_is_passed_through():
     timeout = httpx.Timeout(1.0, connect=0.25)
     server.client(timeout=timeout).map_meta()
     assert server.last.extensions["timeout"] == timeout.as_dict()
+
+
+@pytest.mark.parametrize(
+    ("replies", "waits", "final"),
+    [
+        ([(429, "3"), (200, None)], [3.0], 200),  # waits as long as the server asks
+        ([(503, None), (503, "120"), (200, None)], [1.0, 5.0], 200),  # default 1 s, capped
+        ([(429, "1"), (429, "1"), (429, "1")], [1.0, 1.0], 429),  # two retries, then the error
+        ([(409, None)], [], 409),  # a refusal is final
+    ],
+)
+def test_try_later_replies_are_retried_after_retry_after(replies, waits, final):
+    pending, slept = list(replies), []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        status, retry_after = pending.pop(0)
+        headers = {"Retry-After": retry_after} if retry_after else {}
+        if status == 200:
+            return httpx.Response(200, json={"seq": 7, "map_version": 7})
+        return httpx.Response(status, json={"detail": "busy"}, headers=headers)
+
+    http = httpx.Client(transport=httpx.MockTransport(handler), base_url=BASE)
+    client = MapClient(http, retries=2, max_retry_wait_s=5.0, sleep=slept.append)
+    if final == 200:
+        assert client.post_scan(make_scan([1.0], stamp=3.0)).seq == 7
+    else:
+        with pytest.raises(MapRequestError) as err:
+            client.post_scan(make_scan([1.0], stamp=3.0))
+        assert err.value.status == final
+    assert slept == waits and not pending
+
+
+@pytest.mark.parametrize(
+    ("name", "value"), [("retries", -1), ("retries", True), ("max_retry_wait_s", -1)]
+)
+def test_bad_retry_settings_are_refused_by_name(name, value):
+    http = httpx.Client(base_url=BASE)
+    with pytest.raises(ValueError, match=f"^{name} must be"):
+        MapClient(http, **{name: value})

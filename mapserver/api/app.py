@@ -78,6 +78,9 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     app.state.plan_admission = Admission(
         "plan", 1, reads.max_queued_plans, reads.retry_after_s, reads.nice
     )
+    app.state.metrics.watch_reads(
+        {"query": app.state.query_admission, "plan": app.state.plan_admission}
+    )
     routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
     for module in (*routers, routes_viewer):
         app.include_router(module.router)

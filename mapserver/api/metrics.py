@@ -1,10 +1,14 @@
 """Prometheus metrics of one server (its own registry): scans fused, fusion time, request
-latency, journal size, map version, quarantined journal records, failed snapshots."""
+latency, journal size, map version, quarantined journal records, failed snapshots, heavy
+reads admitted and refused."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
+from mapserver.api.admission import Admission
 from mapserver.service import MapService
 
 LATENCY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
@@ -64,3 +68,22 @@ class ServerMetrics:
             registry=self.registry,
         )
         snapshot_failures.set_function(lambda: service.snapshot_failures)
+
+    def watch_reads(self, admissions: Mapping[str, Admission]) -> None:
+        """Gauges of the heavy reads by kind (``query``, ``plan``): admitted now (computing
+        or waiting) and refused with 429 since start-up."""
+        inside = Gauge(
+            "fleetmap_reads_admitted",
+            "Heavy reads computing or waiting now, by kind",
+            ["kind"],
+            registry=self.registry,
+        )
+        refused = Gauge(
+            "fleetmap_reads_refused",
+            "Heavy reads refused with 429 (saturated) since start-up, by kind",
+            ["kind"],
+            registry=self.registry,
+        )
+        for kind, admission in admissions.items():
+            inside.labels(kind).set_function(lambda a=admission: a.admitted)
+            refused.labels(kind).set_function(lambda a=admission: a.refused)
