@@ -174,3 +174,24 @@ def test_an_old_journal_with_a_stamp_far_ahead_replays_without_it(data_dir):
         assert "fleetmap_journal_quarantined 1.0" in client.get("/metrics").text
         ok = client.post("/v1/scans", json=scan_body(stamp=10.5, unit="u7"))
         assert ok.status_code == 200  # the real u7 is not locked out
+
+
+@pytest.mark.parametrize(
+    "poison, field",
+    [
+        ({"pose_std": {"xy": 1e200, "yaw": 0.0}}, "pose_std.xy"),  # overflowed the weighting
+        ({"pose": {"x": 5.0, "y": 5.0, "yaw": 1.7e308}, "angle_min": 1.7e308}, "pose.yaw"),
+    ],
+)
+def test_a_poison_scan_is_refused_and_the_server_restarts_to_the_same_map(data_dir, poison, field):
+    with app_on(data_dir) as client:
+        fleet_scans(client, seconds=2.0)
+        reply = client.post("/v1/scans", json=scan_body(stamp=2.5, unit="u9", **poison))
+        assert reply.status_code == 422 and reply.json()["detail"].startswith(field)
+        fleet_scans_after = client.post("/v1/scans", json=scan_body(stamp=3.0))
+        assert fleet_scans_after.status_code == 200
+        before, meta = wall_cells(client), client.get("/v1/map/meta").json()
+    with app_on(data_dir) as client:
+        assert wall_cells(client) == before
+        assert client.get("/v1/map/meta").json() == meta
+        assert client.app.state.service.journal.quarantined == 0
