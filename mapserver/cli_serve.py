@@ -91,7 +91,7 @@ def uvicorn_config(app: Any, settings: Settings) -> Any:
         host=settings.host,
         port=settings.port,
         log_level="warning",
-        http=with_head_timeout(server.header_timeout_s),
+        http=with_head_timeout(server.header_timeout_s, server.max_connections),
         timeout_keep_alive=server.keep_alive_s,  # type: ignore[arg-type]  # float works
         limit_concurrency=server.max_connections,
         timeout_graceful_shutdown=server.shutdown_timeout_s,  # type: ignore[arg-type]

@@ -74,30 +74,48 @@ def sample_cells(
     return CellSamples(pts, inside, belief.sample(flat, at), costs.ravel()[flat])
 
 
+CELL_FIELDS = ("x", "y", "state", "p_occ", "cost", "last_observed", "age")
+_STATE_BY_CODE = np.array(
+    [STATE_NAMES[CellState(code)] for code in range(3)] + ["outside"], dtype=object
+)
+_OUTSIDE = 3
+
+
+def cell_columns(samples: CellSamples, at: float) -> dict[str, list]:
+    """The reports of ``samples`` gathered at stamp ``at`` [s] as columns named
+    ``CELL_FIELDS``, one value per point (None where the report has none), built with
+    array operations: 100,000 points take milliseconds, not the better part of a second."""
+    n, inside, sample = len(samples.points), samples.inside, samples.sample
+    codes = np.full(n, _OUTSIDE, dtype=np.int64)
+    codes[inside] = sample.states
+    known = codes[inside] != CellState.UNKNOWN
+    seen = ~np.isnan(sample.last_observed)
+    return {
+        "x": samples.points[:, 0].tolist(),
+        "y": samples.points[:, 1].tolist(),
+        "state": _STATE_BY_CODE[codes].tolist(),
+        "p_occ": _scatter(n, inside, sample.p_occ.astype(np.float64), known),
+        "cost": _scatter(n, inside, samples.costs.astype(np.int64), None),
+        "last_observed": _scatter(n, inside, sample.last_observed, seen),
+        "age": _scatter(n, inside, at - sample.last_observed, seen),
+    }
+
+
+def _scatter(n: int, inside: np.ndarray, values: np.ndarray, valid: np.ndarray | None) -> list:
+    """A list of ``n`` with ``values`` at the ``inside`` points (where ``valid``) and
+    None elsewhere."""
+    out = np.full(n, None, dtype=object)
+    picked = np.flatnonzero(inside)
+    if valid is not None:
+        picked, values = picked[valid], values[valid]
+    out[picked] = values.tolist()
+    return out.tolist()
+
+
 def cell_reports(samples: CellSamples, at: float) -> list[CellReport]:
     """One report per point of ``samples`` gathered at stamp ``at`` [s]."""
-    sample = samples.sample
-    reports: list[CellReport] = []
-    k = 0
-    for i, (x, y) in enumerate(samples.points.tolist()):
-        if not samples.inside[i]:
-            reports.append(CellReport(x, y, "outside", None, None, None, None))
-            continue
-        t = float(sample.last_observed[k])
-        state = CellState(int(sample.states[k]))
-        reports.append(
-            CellReport(
-                x=x,
-                y=y,
-                state=STATE_NAMES[state],
-                p_occ=None if state is CellState.UNKNOWN else float(sample.p_occ[k]),
-                cost=int(samples.costs[k]),
-                last_observed=None if math.isnan(t) else t,
-                age=None if math.isnan(t) else at - t,
-            )
-        )
-        k += 1
-    return reports
+    columns = cell_columns(samples, at)
+    return [CellReport(*row) for row in zip(*(columns[f] for f in CELL_FIELDS), strict=True)]
 
 
 def query_cells(

@@ -45,7 +45,9 @@ from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.occupancy import occupancy_percent
 from mapserver.queries import (
     CellReport,
+    CellSamples,
     SegmentReport,
+    cell_columns,
     cell_reports,
     query_segments,
     sample_cells,
@@ -471,10 +473,19 @@ class MapService:
         with self._lock:
             return self.version, self.costmap.stamp, self.costmap.patches_since(version)
 
-    def cells(self, points: list[list[float]], at: float | None = None) -> list[CellReport]:
-        """CONTRACT 2.4 reports at ``at`` [s] (default: the map's stamp). The lock is
-        held only to gather the points' values (or, at another stamp, to copy the belief):
-        reports are made, and costmaps at other stamps built, outside it."""
+    def cells(self, points: Any, at: float | None = None) -> list[CellReport]:
+        """CONTRACT 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
+        ``at`` [s] (default: the map's stamp)."""
+        return cell_reports(*self._cell_samples(points, at))
+
+    def cell_columns(self, points: Any, at: float | None = None) -> dict[str, list]:
+        """The same reports as columns (``queries.cell_columns``), for large queries."""
+        return cell_columns(*self._cell_samples(points, at))
+
+    def _cell_samples(self, points: Any, at: float | None) -> tuple[CellSamples, float]:
+        """The points' values and the stamp [s] they are read at. The lock is held only to
+        gather them (or, at another stamp, to copy the belief): costmaps at other stamps
+        are built outside it."""
         with self._lock:
             when = self.belief.stamp if at is None else at
             current = at is None or at == self.costmap.stamp
@@ -485,7 +496,7 @@ class MapService:
                 layers = self._frozen_layers(belief)
         if not current:
             samples = sample_cells(belief, self._build(layers, at), points, when)
-        return cell_reports(samples, when)
+        return samples, when
 
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
         """CONTRACT 2.5 reports on the current costmap, copied under the lock."""

@@ -112,13 +112,30 @@ def test_a_silent_or_trickling_client_is_closed_after_the_header_timeout(server)
     assert httpx.get(server.url + "/healthz", timeout=5).status_code == 200
 
 
-def test_past_max_connections_a_request_is_answered_503(server):
-    idle = [connect(server) for _ in range(LIMITS["max_connections"])]
+def test_past_max_connections_the_longest_idle_connection_makes_room(server):
+    idle = [connect(server) for _ in range(LIMITS["max_connections"] + 10)]
+    try:  # 1,050 such connections under 1,024 descriptors once kept /healthz out
+        probe = connect(server, b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        assert status_of(probe.recv(4096)) == 200
+        assert closed_within(idle[0], WAIT_S)  # the oldest idle ones were closed
+        assert not closed_within(idle[-1], 0.2)  # the newest still open
+    finally:
+        for sock in idle:
+            sock.close()
+
+
+def test_past_max_connections_all_busy_a_request_is_answered_503(server):
+    head = b"POST /v1/plan HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+    busy = [
+        connect(server, head + b"Content-Length: 100\r\n\r\n{")  # a body on its way
+        for _ in range(LIMITS["max_connections"])
+    ]
     try:
+        time.sleep(0.2)
         probe = connect(server, b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         assert status_of(probe.recv(4096)) == 503
     finally:
-        for sock in idle:
+        for sock in busy:
             sock.close()
 
 

@@ -15,8 +15,10 @@ import reprlib
 import sys
 from typing import Any
 
+import numpy as np
 import orjson
 from fastapi import HTTPException, Request
+from numba import njit
 
 MAX_DEPTH = 32  # levels of arrays and objects
 FLOAT_MAX = sys.float_info.max
@@ -43,8 +45,8 @@ def parse_json(raw: bytes) -> Any:
             raise too_deep from None
         except (ValueError, UnicodeDecodeError) as exc:
             raise HTTPException(400, f"body: not valid JSON ({exc})") from None
-    # Fewer brackets than the limit cannot nest past it (a scan has five): walk only if not.
-    if raw.count(b"[") + raw.count(b"{") > MAX_DEPTH and _depth(value) > MAX_DEPTH:
+    # Fewer brackets than the limit cannot nest past it (a scan has five): scan only if not.
+    if raw.count(b"[") + raw.count(b"{") > MAX_DEPTH and _nesting(raw) > MAX_DEPTH:
         raise too_deep
     return value
 
@@ -55,15 +57,32 @@ def quote(value: Any) -> str:
     return QUOTE.repr(value)
 
 
-def _depth(value: Any) -> int:
-    """How many levels of lists and dicts ``value`` nests (0 for a scalar)."""
-    deepest, stack = 0, [(value, 1)] if isinstance(value, (list, dict)) else []
-    while stack:
-        item, level = stack.pop()
-        children = item.values() if isinstance(item, dict) else item
-        deepest = max(deepest, level)
-        if level <= MAX_DEPTH:
-            stack.extend((c, level + 1) for c in children if isinstance(c, (list, dict)))
+def _nesting(raw: bytes) -> int:
+    """How many levels of arrays and objects the valid JSON text ``raw`` nests."""
+    return int(_nesting_kernel(np.frombuffer(raw, dtype=np.uint8)))
+
+
+@njit(cache=True, nogil=True)
+def _nesting_kernel(text):
+    """Deepest bracket level of valid JSON bytes, brackets inside strings not counted
+    (one pass; a Python walk of a 100,000-point body's lists took 0.2 s of the loop)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for byte in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif byte == 92:  # backslash
+                escaped = True
+            elif byte == 34:  # closing quote
+                in_string = False
+        elif byte == 34:
+            in_string = True
+        elif byte == 91 or byte == 123:  # [ {
+            depth += 1
+            deepest = max(deepest, depth)
+        elif byte == 93 or byte == 125:  # ] }
+            depth -= 1
     return deepest
 
 

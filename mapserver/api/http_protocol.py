@@ -1,4 +1,5 @@
-"""uvicorn's h11 protocol with a deadline for each request's head.
+"""uvicorn's h11 protocol with a deadline for each request's head, and room kept for
+new connections.
 
 uvicorn closes a keep-alive connection only after a response, and its timer is reset by
 any byte: a client that connects and sends nothing, or sends its headers one byte at a
@@ -8,6 +9,12 @@ headers must all arrive within ``head_timeout_s`` [s] of the connection opening 
 the previous response, else the connection is closed (as nginx's
 ``client_header_timeout``). Body arrival is bounded in ``guards.BodyMiddleware``.
 
+Connections that sit idle also hold descriptors until that deadline; past
+``max_connections`` uvicorn answers every new request 503, and past the process's
+descriptor limit it cannot even accept one. So a connection that opens when
+``max_connections`` are open evicts the one idle longest (waiting for its next request
+head: it loses nothing); when none is idle, uvicorn answers the new one 503.
+
 This subclasses uvicorn's ``H11Protocol`` and reads its h11 connection's state (uvicorn
 has no hook for it); ``tests/test_server_limits.py`` checks it against the installed
 uvicorn.
@@ -16,6 +23,7 @@ uvicorn.
 from __future__ import annotations
 
 import asyncio
+import time
 
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
@@ -25,11 +33,23 @@ class HeadDeadlineProtocol(H11Protocol):
     """``H11Protocol`` that closes a connection whose request head is late."""
 
     head_timeout_s: float = 10.0  # set by ``with_head_timeout``
+    max_connections: int | None = None  # likewise; None: no eviction
     _head_timer: asyncio.TimerHandle | None = None
+    _idle_since: float | None = None  # [s] monotonic, while waiting for a request head
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self._watch_head()
+        self._make_room()
+
+    def _make_room(self) -> None:
+        """At ``max_connections`` open, close the connection idle longest, if any."""
+        others = [c for c in self.connections if c is not self and not c.transport.is_closing()]
+        if self.max_connections is None or len(others) < self.max_connections - 1:
+            return
+        idle = [c for c in others if isinstance(c, HeadDeadlineProtocol) and c._idle_since]
+        if idle:
+            min(idle, key=lambda c: c._idle_since).transport.close()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._cancel_head_timer()
@@ -48,10 +68,12 @@ class HeadDeadlineProtocol(H11Protocol):
         waiting = self.conn.their_state is h11.IDLE and not self.transport.is_closing()
         if waiting and self._head_timer is None:
             self._head_timer = self.loop.call_later(self.head_timeout_s, self._head_late)
+            self._idle_since = time.monotonic()
         elif not waiting:
             self._cancel_head_timer()
 
     def _cancel_head_timer(self) -> None:
+        self._idle_since = None
         if self._head_timer is not None:
             self._head_timer.cancel()
             self._head_timer = None
@@ -62,6 +84,10 @@ class HeadDeadlineProtocol(H11Protocol):
             self.transport.close()
 
 
-def with_head_timeout(head_timeout_s: float) -> type[HeadDeadlineProtocol]:
-    """A ``HeadDeadlineProtocol`` class for uvicorn's ``http=`` with this deadline [s]."""
-    return type("HeadDeadlineProtocol", (HeadDeadlineProtocol,), {"head_timeout_s": head_timeout_s})
+def with_head_timeout(
+    head_timeout_s: float, max_connections: int | None = None
+) -> type[HeadDeadlineProtocol]:
+    """A ``HeadDeadlineProtocol`` class for uvicorn's ``http=`` with this deadline [s]
+    and this many connections at most."""
+    fields = {"head_timeout_s": head_timeout_s, "max_connections": max_connections}
+    return type("HeadDeadlineProtocol", (HeadDeadlineProtocol,), fields)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import orjson
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.exceptions import RequestValidationError
@@ -19,6 +20,7 @@ from mapserver.api.admission import Admission
 from mapserver.api.auth import READ, require
 from mapserver.api.body import body_schema, read_json
 from mapserver.api.schemas import CellsIn, CellsOut, ErrorOut, SegmentsIn, SegmentsOut
+from mapserver.queries import CELL_FIELDS
 
 router = APIRouter(tags=["query"], dependencies=[Depends(require(READ))])
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 413, 415, 422, 429)}
@@ -57,8 +59,10 @@ async def query_cells(request: Request) -> Response:
     service = request.app.state.service
 
     def respond(query: CellsIn) -> dict[str, Any]:
-        reports = service.cells([list(p) for p in query.points], query.at)
-        return {"cells": [r.__dict__ for r in reports]}
+        points = np.array(query.points, dtype=np.float64).reshape(-1, 2)
+        columns = service.cell_columns(points, query.at)
+        rows = zip(*(columns[f] for f in CELL_FIELDS), strict=True)
+        return {"cells": [dict(zip(CELL_FIELDS, row, strict=True)) for row in rows]}
 
     return await answer_on_worker(request, CellsIn, request.app.state.query_admission, respond)
 
