@@ -279,6 +279,10 @@ class ReadSettings(_Section):
     retry_after_s: [s] the ``Retry-After`` a 429 carries.
     nice: how much lower the CPU priority of the threads computing reads is (Linux nice
         steps, 0..19; 0: the same as ingest's), so that ingest gets the CPU first.
+    query_busy_share: the share of time queries may compute back to back (0..1]: they
+        run Python, which holds the GIL that scan ingest needs too; after a query of t
+        seconds the next waits t x (1 / share - 1). Plans search in numba, without the
+        GIL, and are not paced.
     """
 
     max_concurrent_queries: int = Field(default=2, gt=0)
@@ -286,6 +290,7 @@ class ReadSettings(_Section):
     max_queued_plans: int = Field(default=8, ge=0)
     retry_after_s: int = Field(default=1, gt=0)
     nice: int = Field(default=10, ge=0, le=19)
+    query_busy_share: float = Field(default=0.5, gt=0, le=1)
 
 
 class ServerSettings(_Section):

@@ -13,6 +13,7 @@ import asyncio
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
@@ -20,6 +21,7 @@ from typing import TypeVar
 from fastapi import HTTPException
 
 logger = logging.getLogger(__name__)
+MAX_REST_S = 5.0  # [s] the longest a turn rests after a call, however long it took
 
 T = TypeVar("T")
 
@@ -30,14 +32,27 @@ class Admission:
 
     retry_after_s: [s] the ``Retry-After`` of a refusal.
     nice: how much lower the workers' CPU priority is (0: the same as ingest's).
+    busy_share: the share of time a turn may compute (0 < share <= 1): a call that took
+        t [s] keeps its turn for ``t * (1 / busy_share - 1)`` more after answering, so
+        back-to-back reads hold Python's GIL, which ingest and the event loop also need,
+        at most this share of the time (a nice value cannot share the GIL).
     ``close()`` stops the workers.
     """
 
     def __init__(
-        self, what: str, running: int, waiting: int, retry_after_s: int, nice: int = 0
+        self,
+        what: str,
+        running: int,
+        waiting: int,
+        retry_after_s: int,
+        nice: int = 0,
+        busy_share: float = 1.0,
     ) -> None:
         if running < 1 or waiting < 0:
             raise ValueError(f"running must be >= 1 and waiting >= 0, got {running}, {waiting}")
+        if not 0 < busy_share <= 1:
+            raise ValueError(f"busy_share must be in (0, 1], got {busy_share!r}")
+        self.busy_share = float(busy_share)
         self._workers = ThreadPoolExecutor(
             running, thread_name_prefix=f"fleetmap-{what}", initializer=_lower_priority,
             initargs=(nice,),
@@ -63,9 +78,15 @@ class Admission:
         if self._turns is None:
             self._turns = asyncio.Semaphore(self.running)
         self.admitted += 1
+        loop = asyncio.get_running_loop()
         try:
-            async with self._turns:
-                return await asyncio.get_running_loop().run_in_executor(self._workers, work)
+            await self._turns.acquire()
+            start = time.perf_counter()
+            try:
+                return await loop.run_in_executor(self._workers, work)
+            finally:
+                rest = (time.perf_counter() - start) * (1.0 / self.busy_share - 1.0)
+                loop.call_later(min(rest, MAX_REST_S), self._turns.release)
         finally:
             self.admitted -= 1
 

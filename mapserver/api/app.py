@@ -74,6 +74,7 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
         reads.max_queued_queries,
         reads.retry_after_s,
         reads.nice,
+        reads.query_busy_share,
     )
     app.state.plan_admission = Admission(
         "plan", 1, reads.max_queued_plans, reads.retry_after_s, reads.nice

@@ -12,13 +12,13 @@ from typing import Any
 
 import numpy as np
 import orjson
-from fastapi import APIRouter, Depends, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ValidationError
 
 from mapserver.api.admission import Admission
 from mapserver.api.auth import READ, require
-from mapserver.api.body import body_schema, read_json
+from mapserver.api.body import body_schema
 from mapserver.api.schemas import CellsIn, CellsOut, ErrorOut, SegmentsIn, SegmentsOut
 from mapserver.queries import CELL_FIELDS
 
@@ -26,12 +26,19 @@ router = APIRouter(tags=["query"], dependencies=[Depends(require(READ))])
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 413, 415, 422, 429)}
 
 
-def parse_body(model: type[BaseModel], body: Any) -> Any:
-    """``body`` validated as ``model`` (a 422 naming the field, as for any route)."""
+def parse_body(model: type[BaseModel], raw: bytes) -> Any:
+    """The JSON text ``raw`` parsed and validated as ``model`` in one pass of pydantic's
+    parser (a third of the time of parsing, then validating, a 100,000-point body, held
+    in one call without a break for other threads): 400 when it is not JSON, else a 422
+    naming the field, as for any route."""
     try:
-        return model.model_validate(body)
+        return model.model_validate_json(raw)
     except ValidationError as exc:
-        raise RequestValidationError(exc.errors(include_url=False)) from None
+        errors = exc.errors(include_url=False)
+        if errors and errors[0]["type"] == "json_invalid":
+            reason = errors[0].get("ctx", {}).get("error", errors[0]["msg"])
+            raise HTTPException(400, f"body: not valid JSON ({reason})") from None
+        raise RequestValidationError(errors) from None
 
 
 def json_response(content: Any) -> Response:
@@ -42,10 +49,10 @@ def json_response(content: Any) -> Response:
 async def answer_on_worker(
     request: Request, model: type[BaseModel], admission: Admission, respond: Callable[[Any], Any]
 ) -> Response:
-    """Read the body, then on a worker thread under ``admission``: validate it as
-    ``model``, compute ``respond(query)`` and encode it."""
-    body = await read_json(request)
-    return await admission.run(lambda: json_response(respond(parse_body(model, body))))
+    """Receive the body, then on a worker thread under ``admission``: parse it, validate it
+    as ``model``, compute ``respond(query)`` and encode it (the loop only moves bytes)."""
+    raw = await request.body()
+    return await admission.run(lambda: json_response(respond(parse_body(model, raw))))
 
 
 @router.post(

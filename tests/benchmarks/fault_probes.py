@@ -96,6 +96,9 @@ class Reply:
         return self.data.get(key) if isinstance(self.data, dict) else None
 
 
+MAX_DECODED_BYTES = 65536  # replies larger than this are timed and counted, not decoded
+
+
 def call(client: httpx.Client, method: str, path: str, **kwargs: Any) -> Reply:
     """One request; never raises for what the server does (no reply is an ``error``)."""
     t0 = time.perf_counter()
@@ -105,11 +108,12 @@ def call(client: httpx.Client, method: str, path: str, **kwargs: Any) -> Reply:
         return Reply(None, "timeout", seconds=time.perf_counter() - t0)
     except httpx.HTTPError as exc:
         return Reply(None, type(exc).__name__, seconds=time.perf_counter() - t0)
-    try:
-        data = r.json()
+    seconds = time.perf_counter() - t0
+    try:  # a 100k-cell reply is 10 MB: decoding it here would take this process's GIL
+        data = r.json() if len(r.content) <= MAX_DECODED_BYTES else None  # from the writer
     except ValueError:
         data = None
-    return Reply(r.status_code, None, data, time.perf_counter() - t0, dict(r.headers))
+    return Reply(r.status_code, None, data, seconds, dict(r.headers))
 
 
 def client(url: str, timeout: float = TIMEOUT) -> httpx.Client:
