@@ -12,8 +12,9 @@ the previous response, else the connection is closed (as nginx's
 Connections that sit idle also hold descriptors until that deadline; past
 ``max_connections`` uvicorn answers every new request 503, and past the process's
 descriptor limit it cannot even accept one. So a connection that opens when
-``max_connections`` are open evicts the one idle longest (waiting for its next request
-head: it loses nothing); when none is idle, uvicorn answers the new one 503.
+``max_connections`` are open evicts the ones idle longest (waiting at least
+``MIN_IDLE_S`` for their next request head: they lose nothing); when none is idle,
+uvicorn answers the new one 503.
 
 This subclasses uvicorn's ``H11Protocol`` and reads its h11 connection's state (uvicorn
 has no hook for it); ``tests/test_server_limits.py`` checks it against the installed
@@ -27,6 +28,8 @@ import time
 
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
+
+MIN_IDLE_S = 0.25  # [s] a connection waiting this long for its request head is idle
 
 
 class HeadDeadlineProtocol(H11Protocol):
@@ -43,13 +46,29 @@ class HeadDeadlineProtocol(H11Protocol):
         self._make_room()
 
     def _make_room(self) -> None:
-        """At ``max_connections`` open, close the connection idle longest, if any."""
-        others = [c for c in self.connections if c is not self and not c.transport.is_closing()]
-        if self.max_connections is None or len(others) < self.max_connections - 1:
+        """While ``max_connections`` or more are open, close the connections idle longest
+        (idle at least ``MIN_IDLE_S``: a new one's request head may be on its way); if
+        some are too young yet, look again when they are old enough."""
+        if self.max_connections is None:
             return
-        idle = [c for c in others if isinstance(c, HeadDeadlineProtocol) and c._idle_since]
-        if idle:
-            min(idle, key=lambda c: c._idle_since).transport.close()
+        open_ = [c for c in self.connections if not c.transport.is_closing()]
+        excess = len(open_) - (self.max_connections - 1)
+        if excess <= 0:
+            return
+        idle = sorted(
+            (c._idle_since, id(c), c)
+            for c in open_
+            if isinstance(c, HeadDeadlineProtocol) and c._idle_since is not None and c is not self
+        )
+        now = time.monotonic()
+        for since, _, connection in idle:
+            if excess <= 0:
+                return
+            if now - since < MIN_IDLE_S:  # the rest are younger still
+                self.loop.call_later(MIN_IDLE_S - (now - since), self._make_room)
+                return
+            connection.transport.close()
+            excess -= 1
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._cancel_head_timer()
