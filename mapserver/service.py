@@ -4,14 +4,16 @@ State: the belief grid, the layered costmap and the journal, under one lock.
 
 Writes. Scans are validated field by field by the caller (``Scan.from_dict``) and
 submitted; one ingest thread takes them in arrival order, and everything that arrived
-meanwhile is applied as one group (group commit): the state checks (a unit's stamps never
-go backwards, the sensor is on the map), one journal transaction (durable before any
-reply), fusion of each scan, one costmap refresh for the group. A rejected submission
+meanwhile is applied as one group (group commit): the state checks (``scan_gate``: a
+unit's stamps never go backwards, retries answered with their ack, the sensor on the map,
+the fleet clock's rule), one journal transaction (durable before any reply), fusion of
+each scan, one costmap refresh for the group. A rejected submission
 changes nothing. The map's ``version`` is the journal ``seq`` of the last scan fused, so
 it increases with every accepted scan and is the same after a restart.
 
-Reads take the lock only to copy what they need (a costmap of one version with its
-version and stamp), so a slow reader never stalls ingest.
+Reads take the lock only to copy or gather what they need (a costmap of one version with
+its version and stamp, the values at queried points) and compute outside it, so a slow
+reader never stalls ingest.
 
 Durability. Start-up loads the newest snapshot and replays the journal after it: the
 same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots are taken
@@ -53,6 +55,7 @@ from mapserver.queries import (
     sample_cells,
 )
 from mapserver.scan import Scan
+from mapserver.scan_gate import Ack, IngestError, ScanGate, UnitLatest
 from mapserver.settings import Settings
 from mapserver.snapshot_state import load_snapshot_into
 from planner.grid_search import GridPlanner, PlanResult
@@ -64,25 +67,8 @@ LOCK_FILE = "server.lock"
 MAX_GROUP = 512  # scans applied together at most
 
 
-class IngestError(Exception):
-    """A submission refused as a whole: ``status`` (409, 422, 503) and a ``detail``."""
-
-    def __init__(self, status: int, detail: str) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-
-
 class DataDirError(RuntimeError):
     """The data directory cannot be used (in use, or written with other map settings)."""
-
-
-@dataclass(frozen=True)
-class Ack:
-    """An accepted scan: its journal ``seq`` and the map version that includes it."""
-
-    seq: int
-    map_version: int
 
 
 @dataclass(frozen=True)
@@ -98,18 +84,6 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     future: Future
-
-
-@dataclass(frozen=True)
-class _Latest:
-    """A unit's newest scan: its stamp [s], content digest (None: not known yet, read
-    from the journal when needed) and ack (None while it waits in the group at
-    ``slot``, its index among the group's new scans)."""
-
-    stamp: float
-    digest: bytes | None
-    ack: Ack | None = None
-    slot: int | None = None
 
 
 class MapService:
@@ -143,9 +117,13 @@ class MapService:
             stamp=self.belief.stamp,
             version=self.version,
         )
-        self._latest = {
-            unit: _Latest(stamp, None) for unit, stamp in self.journal.unit_stamps().items()
-        }
+        self.gate = ScanGate(
+            self.geometry,
+            self.clock,
+            self.journal.unit_stamps(),
+            self.journal.find_scan,
+            settings.limits.max_beams,
+        )
         self._lock = threading.Lock()
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
@@ -258,119 +236,37 @@ class MapService:
                 return
 
     def _apply_group(self, group: list[_Submission]) -> None:
-        """State checks per submission, one journal transaction, fusion, one costmap
-        refresh; then every submission's future is answered."""
-        accepted: list[tuple[_Submission, list[_Latest]]] = []
-        new: list[Scan] = []  # the group's scans to journal, in order
+        """State checks per submission (``scan_gate``), one journal transaction, fusion,
+        one costmap refresh; then every submission's future is answered."""
+        accepted: list[tuple[_Submission, list[UnitLatest]]] = []
+        acks: list[Ack] = []
         with self._lock:
-            latest = dict(self._latest)
-            clock_before = self.clock.state()
+            check = self.gate.open_group()
             for sub in group:
-                outcome = self._check(sub.scans, latest, new)
+                outcome = check.admit(sub.scans)
                 if isinstance(outcome, IngestError):
                     sub.future.set_exception(outcome)
                     continue
                 accepted.append((sub, outcome))
-            if not new:
-                self._answer(accepted, [])
-                return
-            try:
-                seqs = self.journal.append([scan.journal_record() for scan in new])
-            except Exception as exc:  # disk full, I/O error: nothing was fused
-                self.clock.restore(clock_before)
-                for sub, _ in accepted:
-                    sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
-                return
-            t0 = time.perf_counter()
-            results = self.belief.fuse_many(new)
-            self.version = seqs[-1]
-            self.costmap.update(self.belief.stamp, [r.box for r in results], version=self.version)
-            self.fusion_seconds += time.perf_counter() - t0
-            self._since_snapshot += len(seqs)
-            acks = [Ack(seq, self.version) for seq in seqs]
-            for unit, entry in latest.items():
-                if entry.slot is not None:
-                    latest[unit] = _Latest(entry.stamp, entry.digest, acks[entry.slot])
-            self._latest = latest
-        self._answer(accepted, acks)
-
-    @staticmethod
-    def _answer(accepted: list[tuple[_Submission, list[_Latest]]], acks: list[Ack]) -> None:
+            if check.new:
+                try:
+                    seqs = self.journal.append([scan.journal_record() for scan in check.new])
+                except Exception as exc:  # disk full, I/O error: nothing was fused
+                    check.abandon()
+                    for sub, _ in accepted:
+                        sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
+                    return
+                t0 = time.perf_counter()
+                results = self.belief.fuse_many(check.new)
+                self.version = seqs[-1]
+                boxes = [r.box for r in results]
+                self.costmap.update(self.belief.stamp, boxes, version=self.version)
+                self.fusion_seconds += time.perf_counter() - t0
+                self._since_snapshot += len(seqs)
+                acks = [Ack(seq, self.version) for seq in seqs]
+            check.commit(acks)
         for sub, entries in accepted:
-            sub.future.set_result([e.ack if e.ack is not None else acks[e.slot] for e in entries])
-
-    def _check(
-        self, scans: list[Scan], latest: dict[str, _Latest], new: list[Scan]
-    ) -> IngestError | list[_Latest]:
-        """Check a submission against the units' latest scans and the fleet's clock
-        (lock held). Accepted: ``latest``, ``new`` and the clock are updated and the
-        entry answering each scan is returned (a retry of a scan already taken answers
-        with that scan's ack). Refused: the IngestError, and nothing changed."""
-        clock_state, latest_before, new_before = self.clock.state(), dict(latest), len(new)
-        entries: list[_Latest] = []
-        for i, scan in enumerate(scans):
-            where = f"scans[{i}]." if len(scans) > 1 else ""
-            outcome = self._check_one(scan, where, latest.get(scan.unit_id))
-            if isinstance(outcome, _Latest):  # a retry
-                latest[scan.unit_id] = outcome
-                entries.append(outcome)
-                continue
-            if outcome is not None:
-                self.clock.restore(clock_state)
-                latest.clear()
-                latest.update(latest_before)
-                del new[new_before:]
-                return outcome
-            entry = _Latest(scan.stamp, scan.digest(), slot=len(new))
-            latest[scan.unit_id] = entry
-            new.append(scan)
-            self.clock.observe(scan.unit_id, scan.stamp)
-            entries.append(entry)
-        return entries
-
-    def _check_one(
-        self, scan: Scan, where: str, last: _Latest | None
-    ) -> IngestError | _Latest | None:
-        """One scan: None (new, acceptable), its unit's latest entry (a retry of that
-        very scan) or why it is refused."""
-        if last is not None and scan.stamp <= last.stamp:
-            repeated = self._repeat_of(scan, last) if scan.stamp == last.stamp else None
-            if repeated is not None:
-                return repeated
-            if scan.stamp == last.stamp:
-                return IngestError(
-                    409,
-                    f"{where}stamp: unit {scan.unit_id!r} already sent another scan at "
-                    f"stamp {scan.stamp} (a retry must repeat the scan exactly)",
-                )
-            return IngestError(
-                409,
-                f"{where}stamp: unit {scan.unit_id!r} already sent stamp {last.stamp}, "
-                f"stamps must not go backwards, got {scan.stamp}",
-            )
-        if not self.geometry.contains_point(scan.pose.x, scan.pose.y):
-            xmin, ymin, xmax, ymax = self.geometry.bounds
-            return IngestError(
-                422,
-                f"{where}pose: the sensor must be on the map [{xmin}, {xmax}) x "
-                f"[{ymin}, {ymax}), got ({scan.pose.x}, {scan.pose.y})",
-            )
-        lead = self.clock.check(scan.stamp)
-        if lead is not None:
-            return IngestError(422, f"{where}stamp: {scan.stamp} {lead.describe()}")
-        return None
-
-    def _repeat_of(self, scan: Scan, last: _Latest) -> _Latest | None:
-        """``last`` (with its ack) when ``scan`` is that very scan again, else None. A
-        digest this server has not seen (after a restart) is read from the journal."""
-        if last.digest is None:
-            found = self.journal.find_scan(scan.unit_id, scan.stamp)
-            if found is None:
-                return None
-            seq, body = found
-            stored = Scan.from_dict(body, max_beams=self.settings.limits.max_beams)
-            last = _Latest(last.stamp, stored.digest(), Ack(seq, seq))
-        return last if scan.digest() == last.digest else None
+            sub.future.set_result(check.answers(entries, acks))
 
     def _snapshot_if_due(self) -> None:
         """Copy the belief and save it on a background thread, at most one at a time."""

@@ -11,7 +11,8 @@ from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, quote, read_json
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.scan import Scan, ScanError
-from mapserver.service import IngestError, MapService
+from mapserver.scan_gate import IngestError
+from mapserver.service import MapService
 
 router = APIRouter(tags=["scans"])
 

@@ -1,0 +1,53 @@
+"""The ingest checks on their own: all or none per submission, retries, and a group that
+is abandoned (its journal write failed) or committed."""
+
+from server_helpers import scan_body
+
+from mapserver.fleet_clock import FleetClock
+from mapserver.geometry import GridGeometry
+from mapserver.scan import Scan
+from mapserver.scan_gate import Ack, IngestError, ScanGate
+
+
+def scan(stamp, unit="u1", **fields):
+    return Scan.from_dict(scan_body(stamp=stamp, unit=unit, **fields))
+
+
+def gate(unit_stamps=None, find_scan=lambda unit, stamp: None):
+    clock = FleetClock(5.0, 1000, wall_clock=lambda: 1e9)
+    return ScanGate(GridGeometry(200, 100, 0.1), clock, unit_stamps or {}, find_scan, 16384)
+
+
+def test_a_refused_submission_changes_nothing_of_the_group():
+    g = gate()
+    check = g.open_group()
+    first = check.admit([scan(1.0)])
+    refused = check.admit([scan(2.0, "u2"), scan(0.5)])  # u1 goes backwards: all refused
+    assert isinstance(refused, IngestError) and refused.status == 409
+    assert refused.detail.startswith("scans[1].stamp: unit 'u1' already sent stamp 1.0")
+    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.fleet_median() == 1.0
+    check.commit([Ack(7, 7)])
+    assert check.answers(first, [Ack(7, 7)]) == [Ack(7, 7)]
+
+
+def test_an_abandoned_group_leaves_the_gate_as_it_was():
+    g = gate()
+    check = g.open_group()
+    check.admit([scan(1.0), scan(1.0, "u2")])
+    check.abandon()  # the journal write failed
+    assert g.clock.fleet_median() is None
+    again = g.open_group()
+    assert isinstance(again.admit([scan(1.0)]), list)  # not a retry of an unjournaled scan
+    assert len(again.new) == 1
+
+
+def test_a_retry_after_a_restart_is_answered_from_the_journal():
+    stored = scan_body(stamp=4.0)
+    g = gate(
+        {"u1": 4.0}, lambda unit, stamp: (12, stored) if (unit, stamp) == ("u1", 4.0) else None
+    )
+    check = g.open_group()
+    entries = check.admit([scan(4.0)])
+    assert check.answers(entries, []) == [Ack(12, 12)] and check.new == []
+    other = check.admit([scan(4.0, y=6.0)])
+    assert isinstance(other, IngestError) and "already sent another scan" in other.detail
