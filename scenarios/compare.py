@@ -70,6 +70,7 @@ def parse_policies(text: str) -> tuple[str, ...]:
 
 def run_compare(args: argparse.Namespace) -> int:
     """The ``compare`` handler (module docstring for the exit status)."""
+    from mapserver.atomic import atomic_output
     from scenarios.compare_table import compare_markdown
     from scenarios.sweep import ScenarioError, Sweep, check_sweep, expand
     from scenarios.sweep_results import write_csv
@@ -92,7 +93,8 @@ def run_compare(args: argparse.Namespace) -> int:
     out = Path(args.out)
     write_csv(sweep, results, out / CSV_FILENAME)
     text = compare_markdown(results, [p.stem for p in paths], policies, args.seeds)
-    (out / MD_FILENAME).write_text(text, encoding="utf-8")
+    with atomic_output(out / MD_FILENAME) as f:
+        f.write(text.encode())
     print()
     print(text, end="")
     print(f"\noutputs: {out / CSV_FILENAME} (one row per run), {out / MD_FILENAME} (the "

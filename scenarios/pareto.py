@@ -25,6 +25,7 @@ from pathlib import Path
 from mapserver.atomic import atomic_output
 from scenarios.metric_values import metric_value
 from scenarios.sweep import Scalar, Sweep
+from scenarios.sweep_results import cell_text
 from scenarios.sweep_run import RunResult
 
 __all__ = [
@@ -81,9 +82,9 @@ def settings_of(results: Sequence[RunResult]) -> list[Setting]:
     for (scenario, policy, parameters), runs in groups.items():
         means = {}
         for name in OBJECTIVES:
-            values = [metric_value(r.metrics, name) for r in runs]
-            if all(v is not None for v in values):
-                means[name] = math.fsum(values) / len(values)  # type: ignore[arg-type]
+            values = [v for v in (metric_value(r.metrics, name) for r in runs) if v is not None]
+            if len(values) == len(runs):
+                means[name] = math.fsum(values) / len(values)
         out.append(Setting(scenario, policy, parameters, len(runs), means))
     return out
 
@@ -119,8 +120,9 @@ def write_pareto(sweep: Sweep, results: Sequence[RunResult], path: Path) -> int:
     writer.writerow(header)
     for s in front:
         params = dict(s.parameters)
-        writer.writerow([s.scenario, s.policy, *(params[k] for k in sweep.parameter_names),
-                         s.seeds, *(round(s.objectives[n], 6) for n in objectives)])  # fmt: skip
+        row = [s.scenario, s.policy, *(params[k] for k in sweep.parameter_names), s.seeds,
+               *(round(s.objectives[n], 6) for n in objectives)]  # fmt: skip
+        writer.writerow([cell_text(v) for v in row])
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(Path(path)) as f:
         f.write(text.getvalue().encode())
