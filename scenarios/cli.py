@@ -11,6 +11,7 @@ from mapserver.cli_serve import add_serve_parsers
 from planner.cli_plan import add_plan_parser
 from scenarios.cli_run import add_run_parsers
 from scenarios.cli_sweep import add_sweep_parser
+from scenarios.compare import add_compare_parser
 from scenarios.replay_run import run_replay
 
 
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_serve_parsers(sub)
     add_plan_parser(sub)
     add_run_parsers(sub)
+    add_compare_parser(sub)
     sub.choices["replay"].set_defaults(handler=run_replay)  # journals and run replays
     add_sweep_parser(sub)
     add_journal_parser(sub)

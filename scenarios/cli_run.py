@@ -1,5 +1,5 @@
-"""``fleetmap run`` (one scenario) and ``fleetmap compare`` (one scenario under several
-policies, one table)."""
+"""``fleetmap run``: one scenario, its metrics as a table (or JSON); ``fleetmap compare``
+is ``scenarios.compare``."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ TWO_DECIMALS = ("trip_time_ratio", "fleet_efficiency")  # ratios near 1: one dec
 
 
 def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``run`` and ``compare``."""
+    """Register ``run``."""
     run = subparsers.add_parser(
         "run",
         help="run one scenario end to end",
@@ -44,20 +44,6 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
     run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
     run.set_defaults(handler=run_one)
-
-    compare = subparsers.add_parser(
-        "compare",
-        help="run a scenario under several policies and print one table",
-        description="Run a scenario once per policy (same seed) and compare the metrics.",
-    )
-    compare.add_argument("scenario", type=Path, help="scenario YAML")
-    compare.add_argument(
-        "--policies", default="decay,binary,sticky", help="comma-separated (default: all three)"
-    )
-    compare.add_argument("--seed", type=int, help="override the scenario's seed")
-    compare.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder")
-    compare.add_argument("--json", action="store_true", help="print all metrics as JSON last")
-    compare.set_defaults(handler=run_compare)
 
 
 def run_one(args: argparse.Namespace) -> int:
@@ -74,27 +60,6 @@ def run_one(args: argparse.Namespace) -> int:
     else:
         print(format_table([metrics]))
         print(f"outputs in {args.out}")
-    return 0
-
-
-def run_compare(args: argparse.Namespace) -> int:
-    from scenarios.execute import ScenarioError, execute
-
-    policies = [p.strip() for p in args.policies.split(",") if p.strip()]
-    try:
-        for policy in policies:
-            Policy.parse(policy)
-        rows = []
-        for policy in policies:
-            out = args.out / policy
-            bar = _progress_bar(f"{args.scenario.stem} {policy}")
-            rows.append(execute(args.scenario, policy, args.seed, None, out, progress=bar))
-    except (ScenarioError, ValueError, OSError) as exc:
-        print(f"\nfleetmap compare: error: {exc}", file=sys.stderr)
-        return 2
-    print(format_table(rows))
-    if args.json:
-        print(json.dumps(rows))
     return 0
 
 

@@ -1,6 +1,7 @@
 """``fleetmap sweep SWEEP.yaml [--workers N] [--ray ADDRESS] [--out DIR]``: many runs in
 parallel (``scenarios.sweep`` for the file, ``scenarios.sweep_run`` for the pool or
-Ray, ``scenarios.sweep_results`` for ``results.csv`` and ``tradeoff.png``)."""
+Ray, ``scenarios.sweep_results`` for ``results.csv`` and ``tradeoff.png``,
+``scenarios.pareto`` for ``pareto.csv``)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,13 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
         help="run many scenario x policy x parameter x seed runs in parallel",
         description="Run every combination of a sweep file's scenarios, policies, parameter "
         "grid and seeds in parallel; writes DIR/results.csv (one row per run), "
-        "DIR/tradeoff.png and each run's outputs under DIR.",
+        "DIR/tradeoff.png, DIR/pareto.csv (the settings no other setting beats on phantom "
+        "freeze seconds, forgotten cells and stale-free plans, averaged over seeds) and "
+        "each run's outputs under DIR.",
     )
     sweep.add_argument("sweep", type=Path, help="sweep YAML (see docs/scenarios.md)")
     sweep.add_argument(
-        "--workers", type=_positive, default=None, help="parallel runs (default: CPU count)"
+        "--workers", type=positive_int, default=None, help="parallel runs (default: CPU count)"
     )
     sweep.add_argument(
         "--ray",
@@ -34,9 +37,10 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
 def run_sweep_command(args: argparse.Namespace) -> int:
     """The ``sweep`` handler: 0 when every run succeeded, 1 when some failed, 2 when the
     sweep could not start (bad file, Ray missing)."""
+    from scenarios.pareto import PARETO_FILENAME, write_pareto
     from scenarios.sweep import ScenarioError, expand, load_sweep
     from scenarios.sweep_results import PLOT_FILENAME, RESULTS_FILENAME, write_csv, write_plot
-    from scenarios.sweep_run import MissingExtraError, RunResult, import_ray, run_sweep
+    from scenarios.sweep_run import MissingExtraError, import_ray, progress_printer, run_sweep
 
     try:
         if args.ray is not None:
@@ -48,29 +52,24 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     runs = expand(sweep)
     where = f"Ray at {args.ray}" if args.ray is not None else "local processes"
     print(f"fleetmap sweep: {len(runs)} runs on {where}", file=sys.stderr, flush=True)
-    finished = 0
-
-    def report(result: RunResult) -> None:
-        nonlocal finished
-        finished += 1
-        state = "ok" if result.status == "ok" else f"FAILED: {result.error}"
-        print(f"[{finished}/{len(runs)}] {result.run.label()} {state} "
-              f"({result.wall_seconds:.1f} s)", file=sys.stderr, flush=True)  # fmt: skip
-
     try:
-        results = run_sweep(runs, args.out, args.workers, args.ray, on_result=report)
+        results = run_sweep(
+            runs, args.out, args.workers, args.ray, on_result=progress_printer(len(runs))
+        )
     except MissingExtraError as exc:
         print(f"fleetmap sweep: error: {exc}", file=sys.stderr)
         return 2
     write_csv(sweep, results, args.out / RESULTS_FILENAME)
     write_plot(sweep, results, args.out / PLOT_FILENAME)
+    front = write_pareto(sweep, results, args.out / PARETO_FILENAME)
     failed = sum(r.status != "ok" for r in results)
     print(f"{len(results) - failed}/{len(results)} runs ok; "
-          f"{args.out / RESULTS_FILENAME}, {args.out / PLOT_FILENAME}")  # fmt: skip
+          f"{args.out / RESULTS_FILENAME}, {args.out / PLOT_FILENAME}, "
+          f"{args.out / PARETO_FILENAME} ({front} non-dominated settings)")  # fmt: skip
     return 1 if failed else 0
 
 
-def _positive(text: str) -> int:
+def positive_int(text: str) -> int:
     """An argparse type: an integer >= 1."""
     try:
         value = int(text)

@@ -23,7 +23,14 @@ from mapserver.atomic import atomic_output
 from scenarios.sweep import Sweep
 from scenarios.sweep_run import RunResult
 
-__all__ = ["CONTRACT_METRICS", "result_columns", "result_rows", "write_csv", "write_plot"]
+__all__ = [
+    "CONTRACT_METRICS",
+    "cell_text",
+    "result_columns",
+    "result_rows",
+    "write_csv",
+    "write_plot",
+]
 
 RESULTS_FILENAME = "results.csv"
 PLOT_FILENAME = "tradeoff.png"
@@ -74,7 +81,7 @@ def result_rows(sweep: Sweep, results: Sequence[RunResult]) -> list[dict[str, st
             "run_wall_seconds": round(result.wall_seconds, 3),
             "out_dir": str(result.out_dir),
         }
-        rows.append({c: _text(values.get(c)) for c in columns})
+        rows.append({c: cell_text(values.get(c)) for c in columns})
     return rows
 
 
@@ -136,7 +143,7 @@ def _number(value: Any) -> float:
         return float("nan")
 
 
-def _text(value: Any) -> str:
+def cell_text(value: Any) -> str:
     """A CSV cell: lists joined with ``;``, None empty (``null`` inside lists)."""
     if value is None:
         return ""

@@ -17,17 +17,25 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from scenarios.sweep import SweepRun
 
-__all__ = ["MissingExtraError", "RunResult", "execute_run", "import_ray", "run_sweep"]
+__all__ = [
+    "MissingExtraError",
+    "RunResult",
+    "execute_run",
+    "import_ray",
+    "progress_printer",
+    "run_sweep",
+]
 
 RAY_EXTRA = "ray"
 
@@ -111,6 +119,22 @@ def _run_pool(
                 if on_result is not None:
                     on_result(result)
     return [r for r in results if r is not None]
+
+
+def progress_printer(total: int, stream: TextIO | None = None) -> Callable[[RunResult], None]:
+    """An ``on_result`` that prints ``[k/total] <run folder> ok (12.3 s)`` (or ``FAILED:
+    <error>``) to ``stream`` (default stderr) as each run finishes, flushed at once so a
+    pipe or a log file shows it then."""
+    finished = 0
+
+    def report(result: RunResult) -> None:
+        nonlocal finished
+        finished += 1
+        state = "ok" if result.status == "ok" else f"FAILED: {result.error}"
+        print(f"[{finished}/{total}] {result.run.label()} {state} "
+              f"({result.wall_seconds:.1f} s)", file=stream or sys.stderr, flush=True)  # fmt: skip
+
+    return report
 
 
 def import_ray() -> Any:

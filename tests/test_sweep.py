@@ -5,27 +5,22 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
 import pytest
+from scenario_helpers import TINY, tiny5
 
 from scenarios.cli import main
+from scenarios.metric_values import metric_value
+from scenarios.pareto import dominates
 from scenarios.sweep import ScenarioError, SweepRun, expand, load_sweep
 from scenarios.sweep_results import CONTRACT_METRICS
 from scenarios.sweep_run import MissingExtraError, import_ray, run_sweep
 
-TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
 HALF_LIFE = "map_server.decay.half_life_occupied"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def tiny5(folder: Path) -> Path:
-    """tiny.yaml with its drop and removal moved inside a 5 s run (at 1 s and 3 s)."""
-    text = TINY.read_text().replace("at: 4.0", "at: 1.0").replace("at: 12.0", "at: 3.0")
-    path = folder / "tiny5.yaml"
-    path.write_text(text)
-    return path
 
 
 def write_sweep(folder: Path, text: str) -> Path:
@@ -172,6 +167,30 @@ def test_sweep_writes_a_png_tradeoff_plot(swept: tuple[Path, int]) -> None:
     out, _ = swept
     data = (out / "tradeoff.png").read_bytes()
     assert data.startswith(PNG_MAGIC) and len(data) > 5_000
+
+
+def test_sweep_writes_the_undominated_settings_to_pareto_csv(swept: tuple[Path, int]) -> None:
+    out, _ = swept
+    with (out / "pareto.csv").open(newline="") as f:
+        front = list(csv.DictReader(f))
+    names = ["phantom_freeze_seconds", "map_truth.forgotten_cells", "stale_free_plans"]
+    runs = {}  # one seed per setting: (policy, half-life) -> that run's objectives
+    for r in read_rows(out):
+        metrics = json.loads((Path(r["out_dir"]) / "metrics.json").read_text())
+        runs[(r["policy"], r[HALF_LIFE])] = [metric_value(metrics, n) for n in names]
+    if any(point[1] is None for point in runs.values()):  # map_truth is optional
+        names.pop(1)
+        runs = {k: [v for i, v in enumerate(point) if i != 1] for k, point in runs.items()}
+    columns = [n.removeprefix("map_truth.") for n in names]
+    assert front and list(front[0]) == ["scenario", "policy", HALF_LIFE, "seeds", *columns]
+    for row in front:
+        point = [float(row[c]) for c in columns]
+        assert row["seeds"] == "1"
+        assert point == pytest.approx(runs[(row["policy"], row[HALF_LIFE])], abs=1e-6)
+        assert not any(dominates(other, point) for other in runs.values())
+    kept = {(row["policy"], row[HALF_LIFE]) for row in front}
+    for key, point in runs.items():  # a setting left out is beaten by one kept
+        assert key in kept or any(dominates(runs[k], point) for k in kept)
 
 
 def test_failed_run_is_recorded_not_fatal(tmp_path: Path) -> None:
