@@ -1,0 +1,113 @@
+"""The scans a run's map server fused and its map settings, as ``replay.mcap`` keeps them
+so that ``fleetmap replay`` rebuilds the server's map bit for bit.
+
+Source: the data dir of the run's own server once it has stopped: its map settings
+(``map-settings.json``: grid, sensor model, policy, decay, max clearing range) and its
+journal read as the server reads it at start-up (``mapserver.replay.journal_scans``: seq
+order, damaged records and clock-rule breakers left out), which is the order the server
+fused them in.
+
+In the MCAP file:
+
+- channel ``/fleetmap/scans``, JSON messages with the JSON schema ``fleetmap.FusedScan``,
+  one per fused scan, log and publish time its stamp [ns], written in (stamp, seq) order::
+
+      {"seq": 17,                      # the server journal's seq (fusion order)
+       "scan": {...},                  # CONTRACT 2.1 scan object without "ranges"
+       "ranges": "AAAA..."}            # base64 of the ranges as little-endian float64
+                                       # (NaN invalid, +inf no return), as journaled
+
+  Floats in ``scan`` are written as their shortest round-trip decimal, so they read
+  back as the same float64; ranges are the journal's own bytes.
+- metadata record ``fleetmap.map_settings``: key ``json``, the settings' JSON text.
+
+A run against an outside server (``fleetmap run --server``) has no data dir to read: its
+replay has neither, and ``fleetmap replay`` falls back to the sampled LaserScans.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import orjson
+
+from mapserver.journal import JOURNAL_FILENAME
+from mapserver.replay import journal_scans, read_settings
+from mapserver.scan import Scan
+
+FUSED_TOPIC = "/fleetmap/scans"
+FUSED_SCHEMA_NAME = "fleetmap.FusedScan"
+MAP_SETTINGS_METADATA = "fleetmap.map_settings"
+
+FUSED_SCHEMA: dict[str, Any] = {
+    "title": FUSED_SCHEMA_NAME,
+    "type": "object",
+    "properties": {
+        "seq": {"type": "integer", "minimum": 1},
+        "scan": {"type": "object"},
+        "ranges": {"type": "string", "contentEncoding": "base64"},
+    },
+    "required": ["seq", "scan", "ranges"],
+}
+"""JSON schema of a ``/fleetmap/scans`` message (``scan``: CONTRACT 2.1, no ``ranges``)."""
+
+
+@dataclass(frozen=True)
+class FusedScans:
+    """What a run's server fused: its map settings (as in ``map-settings.json``) and its
+    scans as (journal seq, scan), in seq order."""
+
+    settings: dict[str, Any]
+    scans: tuple[tuple[int, Scan], ...]
+
+
+def read_fused(data_dir: Path) -> FusedScans:
+    """The map settings and fused scans of a stopped server's ``data_dir``
+    (``mapserver.replay.ReplayError`` when it holds no readable journal)."""
+    scans, _ = journal_scans(Path(data_dir) / JOURNAL_FILENAME)
+    return FusedScans(read_settings(data_dir), tuple(scans))
+
+
+def fused_message(seq: int, scan: Scan) -> bytes:
+    """The ``/fleetmap/scans`` message of one fused scan (module docstring)."""
+    ranges = np.ascontiguousarray(scan.ranges, dtype="<f8").tobytes()
+    message = {"seq": seq, "scan": scan.to_dict(with_ranges=False), "ranges": ranges}
+    return orjson.dumps(message, default=_base64)
+
+
+def fused_scan(data: bytes) -> tuple[int, Scan]:
+    """(seq, scan) of a ``/fleetmap/scans`` message; ValueError when it is not one."""
+    message = orjson.loads(data)
+    ranges = np.frombuffer(base64.b64decode(message["ranges"], validate=True), dtype="<f8")
+    return int(message["seq"]), Scan.from_dict({**message["scan"], "ranges": ranges})
+
+
+def in_fusion_order(items: Iterable[tuple[int, Scan]]) -> list[Scan]:
+    """The scans of (seq, scan) items in seq order; ValueError when a seq repeats."""
+    ordered = sorted(items, key=lambda item: item[0])
+    seqs = [seq for seq, _ in ordered]
+    if len(set(seqs)) != len(seqs):
+        raise ValueError("a /fleetmap/scans seq appears twice")
+    return [scan for _, scan in ordered]
+
+
+def settings_metadata(settings: dict[str, Any]) -> dict[str, str]:
+    """The ``fleetmap.map_settings`` metadata record's content."""
+    return {"json": json.dumps(settings, sort_keys=True)}
+
+
+def settings_of(metadata: dict[str, str]) -> dict[str, Any]:
+    """The map settings of a ``fleetmap.map_settings`` record (ValueError: not JSON)."""
+    return json.loads(metadata["json"])
+
+
+def _base64(value: Any) -> str:
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    raise TypeError(f"cannot encode {type(value).__name__}")
