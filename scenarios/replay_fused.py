@@ -14,11 +14,13 @@ In the MCAP file:
 
       {"seq": 17,                      # the server journal's seq (fusion order)
        "scan": {...},                  # CONTRACT 2.1 scan object without "ranges"
-       "ranges": "AAAA..."}            # base64 of the ranges as little-endian float64
-                                       # (NaN invalid, +inf no return), as journaled
+       "ranges_shuffled": "AAAA..."}   # base64 of the ranges' float64 bytes by plane
 
   Floats in ``scan`` are written as their shortest round-trip decimal, so they read
-  back as the same float64; ranges are the journal's own bytes.
+  back as the same float64. ``ranges_shuffled`` holds the journal's own float64 values
+  (NaN invalid, +inf no return), little-endian, byte-shuffled: byte 0 of every beam,
+  then byte 1 of every beam, ..., byte 7 (``shuffle_f8``); the chunk compression (zstd)
+  packs the planes about a fifth smaller than the plain bytes.
 - metadata record ``fleetmap.map_settings``: key ``json``, the settings' JSON text.
 
 A run against an outside server (``fleetmap run --server``) has no data dir to read: its
@@ -51,9 +53,9 @@ FUSED_SCHEMA: dict[str, Any] = {
     "properties": {
         "seq": {"type": "integer", "minimum": 1},
         "scan": {"type": "object"},
-        "ranges": {"type": "string", "contentEncoding": "base64"},
+        "ranges_shuffled": {"type": "string", "contentEncoding": "base64"},
     },
-    "required": ["seq", "scan", "ranges"],
+    "required": ["seq", "scan", "ranges_shuffled"],
 }
 """JSON schema of a ``/fleetmap/scans`` message (``scan``: CONTRACT 2.1, no ``ranges``)."""
 
@@ -76,16 +78,31 @@ def read_fused(data_dir: Path) -> FusedScans:
 
 def fused_message(seq: int, scan: Scan) -> bytes:
     """The ``/fleetmap/scans`` message of one fused scan (module docstring)."""
-    ranges = np.ascontiguousarray(scan.ranges, dtype="<f8").tobytes()
-    message = {"seq": seq, "scan": scan.to_dict(with_ranges=False), "ranges": ranges}
+    ranges = shuffle_f8(scan.ranges)
+    message = {"seq": seq, "scan": scan.to_dict(with_ranges=False), "ranges_shuffled": ranges}
     return orjson.dumps(message, default=_base64)
 
 
 def fused_scan(data: bytes) -> tuple[int, Scan]:
     """(seq, scan) of a ``/fleetmap/scans`` message; ValueError when it is not one."""
     message = orjson.loads(data)
-    ranges = np.frombuffer(base64.b64decode(message["ranges"], validate=True), dtype="<f8")
+    ranges = unshuffle_f8(base64.b64decode(message["ranges_shuffled"], validate=True))
     return int(message["seq"]), Scan.from_dict({**message["scan"], "ranges": ranges})
+
+
+def shuffle_f8(values: np.ndarray) -> bytes:
+    """The little-endian float64 bytes of ``values`` grouped by byte plane: byte 0 of
+    each value, then byte 1 of each, ..., byte 7."""
+    planes = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(-1, 8)
+    return planes.T.tobytes()
+
+
+def unshuffle_f8(data: bytes) -> np.ndarray:
+    """The float64 values of ``shuffle_f8`` bytes (ValueError: not whole values)."""
+    if len(data) % 8:
+        raise ValueError(f"{len(data)} bytes are not whole float64 values")
+    planes = np.frombuffer(data, dtype=np.uint8).reshape(8, -1)
+    return np.ascontiguousarray(planes.T).view("<f8").reshape(-1)
 
 
 def in_fusion_order(items: Iterable[tuple[int, Scan]]) -> list[Scan]:

@@ -21,7 +21,13 @@ from scenarios import runner
 from scenarios.cli import main
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.record import RunRecord
-from scenarios.replay_fused import FUSED_TOPIC, fused_message, fused_scan
+from scenarios.replay_fused import (
+    FUSED_TOPIC,
+    fused_message,
+    fused_scan,
+    shuffle_f8,
+    unshuffle_f8,
+)
 from scenarios.replay_mcap import REPLAY_FILENAME, read_fused_replay, write_replay
 from scenarios.replay_objects import ObjectRecorder
 from scenarios.spec import load_scenario
@@ -174,3 +180,13 @@ def test_a_replay_without_fused_scans_falls_back_to_its_laser_scans(tiny, tmp_pa
     out, err = capsys.readouterr()
     assert json.loads(out.splitlines()[-1])["scans"] == len(record.scans) < 400
     assert "approximation" in err
+
+
+def test_shuffled_ranges_are_byte_planes_and_refuse_a_partial_value():
+    values = np.array([1.0, -2.5, np.nan, np.inf])
+    planes = shuffle_f8(values)
+    assert planes[:4] == bytes(values.astype("<f8").view(np.uint8)[0::8])  # every byte 0
+    assert planes[-4:] == bytes(values.astype("<f8").view(np.uint8)[7::8])  # every byte 7
+    assert unshuffle_f8(planes).tobytes() == values.astype("<f8").tobytes()
+    with pytest.raises(ValueError, match="not whole float64"):
+        unshuffle_f8(planes[:-1])
