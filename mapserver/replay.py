@@ -9,6 +9,7 @@ quarantine them, but the journal is not changed."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from mapserver.belief import BeliefGrid
 from mapserver.fleet_clock import FleetClock
 from mapserver.geometry import GridGeometry
 from mapserver.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
-from mapserver.journal_reading import read_records
+from mapserver.journal_reading import ReadRecord, read_records
 from mapserver.scan import Scan
 from mapserver.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service import MAP_SETTINGS_FILE
@@ -82,13 +83,19 @@ def journal_scans(
     fuses them (stamps <= ``until`` [s] when given), and the records skipped."""
     scans: list[tuple[int, Scan]] = []
     skipped: list[Skipped] = []
+    for record in journal_records(journal_file, until):
+        if record.scan is None:
+            skipped.append(Skipped(record.seq, record.unit_id, record.problem))
+        else:
+            scans.append((record.seq, record.scan))
+    return scans, skipped
+
+
+def journal_records(journal_file: Path, until: float | None = None) -> Iterator[ReadRecord]:
+    """The journal's records one by one as the server reads them (``read_records``);
+    ReplayError when the journal itself cannot be read."""
     try:
         with open_journal_for_replay(journal_file) as journal:
-            for record in read_records(journal, FleetClock(), until=until):
-                if record.scan is None:
-                    skipped.append(Skipped(record.seq, record.unit_id, record.problem))
-                else:
-                    scans.append((record.seq, record.scan))
+            yield from read_records(journal, FleetClock(), until=until)
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None
-    return scans, skipped

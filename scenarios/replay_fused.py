@@ -3,14 +3,16 @@ so that ``fleetmap replay`` rebuilds the server's map bit for bit.
 
 Source: the data dir of the run's own server once it has stopped: its map settings
 (``map-settings.json``: grid, sensor model, policy, decay, max clearing range) and its
-journal read as the server reads it at start-up (``mapserver.replay.journal_scans``: seq
-order, damaged records and clock-rule breakers left out), which is the order the server
-fused them in.
+journal read as the server reads it at start-up (``mapserver.replay.journal_records``:
+seq order, damaged records and clock-rule breakers left out), which is the order the
+server fused them in. The journal is read while the replay is written, one scan at a
+time, so a long run's scans are never all in memory.
 
 In the MCAP file:
 
 - channel ``/fleetmap/scans``, JSON messages with the JSON schema ``fleetmap.FusedScan``,
-  one per fused scan, log and publish time its stamp [ns], written in (stamp, seq) order::
+  one per fused scan, log and publish time its stamp [ns], written in seq order (a run's
+  fleet posts tick by tick, so the stamps never go down along it)::
 
       {"seq": 17,                      # the server journal's seq (fusion order)
        "scan": {...},                  # CONTRACT 2.1 scan object without "ranges"
@@ -31,16 +33,18 @@ from __future__ import annotations
 
 import base64
 import json
-from collections.abc import Iterable
+import weakref
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from tempfile import TemporaryDirectory
 from typing import Any
 
 import numpy as np
 import orjson
 
 from mapserver.journal import JOURNAL_FILENAME
-from mapserver.replay import journal_scans, read_settings
+from mapserver.replay import journal_records, read_settings
 from mapserver.scan import Scan
 
 FUSED_TOPIC = "/fleetmap/scans"
@@ -63,17 +67,26 @@ FUSED_SCHEMA: dict[str, Any] = {
 @dataclass(frozen=True)
 class FusedScans:
     """What a run's server fused: its map settings (as in ``map-settings.json``) and its
-    scans as (journal seq, scan), in seq order."""
+    journal file."""
 
     settings: dict[str, Any]
-    scans: tuple[tuple[int, Scan], ...]
+    journal: Path
+
+    def scans(self) -> Iterator[tuple[int, Scan]]:
+        """The fused scans as (journal seq, scan), in seq order, read one at a time."""
+        for record in journal_records(self.journal):
+            if record.scan is not None:
+                yield record.seq, record.scan
 
 
-def read_fused(data_dir: Path) -> FusedScans:
-    """The map settings and fused scans of a stopped server's ``data_dir``
-    (``mapserver.replay.ReplayError`` when it holds no readable journal)."""
-    scans, _ = journal_scans(Path(data_dir) / JOURNAL_FILENAME)
-    return FusedScans(read_settings(data_dir), tuple(scans))
+def read_fused(data_dir: Path, folder: TemporaryDirectory | None = None) -> FusedScans:
+    """The map settings and journal of a stopped server's ``data_dir``
+    (``mapserver.replay.ReplayError`` when it holds no settings); ``folder``, the
+    temporary folder that holds ``data_dir``, is removed when the result is."""
+    fused = FusedScans(read_settings(data_dir), Path(data_dir) / JOURNAL_FILENAME)
+    if folder is not None:
+        weakref.finalize(fused, folder.cleanup)
+    return fused
 
 
 def fused_message(seq: int, scan: Scan) -> bytes:

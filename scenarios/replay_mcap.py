@@ -280,7 +280,7 @@ def _plans(record: RunRecord) -> Iterator[_Item]:
 def _fused(record: RunRecord) -> Iterator[_Item]:
     if record.fused is None:
         return
-    for seq, scan in sorted(record.fused.scans, key=lambda item: (item[1].stamp, item[0])):
+    for seq, scan in record.fused.scans():
         yield stamp_ns(scan.stamp), _FUSED, fused_message(seq, scan)
 
 

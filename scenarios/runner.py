@@ -41,10 +41,11 @@ def run(
     on ``data_dir``, a temporary one when None; ``token``: the bearer token for a server
     that needs one); ``progress(now, duration)`` [s] after every step. With an embedded
     server the record holds what it fused (``RunRecord.fused``, read once it stopped)."""
-    with tempfile.TemporaryDirectory(prefix="fleetmap-run-") as tmp:
-        server = None
+    tmp = tempfile.TemporaryDirectory(prefix="fleetmap-run-")  # kept by record.fused
+    server = None
+    try:
         if server_url is None:
-            data_dir = Path(tmp) / "data" if data_dir is None else Path(data_dir)
+            data_dir = Path(tmp.name) / "data" if data_dir is None else Path(data_dir)
             server = EmbeddedServer(data_dir, setup.server_overrides())
             server_url = server.url
             if announce is not None:
@@ -61,9 +62,14 @@ def run(
         finally:
             if server is not None:
                 server.stop()
-        if server is not None and data_dir is not None:
-            record.fused = read_fused(data_dir)
+        if server is None:
+            tmp.cleanup()
+        else:  # read while the replay is written; the temporary folder goes with it
+            record.fused = read_fused(server.data_dir, tmp)
         return record
+    except BaseException:
+        tmp.cleanup()
+        raise
 
 
 def grid_geometry(width_m: float, height_m: float, resolution: float) -> GridGeometry:

@@ -1,8 +1,12 @@
 """A run's ``replay.mcap`` reproduces its server's map bit for bit (every fused scan and
 the map settings), and its scene holds the world's objects over time."""
 
+import gc
 import json
 import math
+import shutil
+import tempfile
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -25,6 +29,7 @@ from scenarios.replay_fused import (
     FUSED_TOPIC,
     fused_message,
     fused_scan,
+    read_fused,
     shuffle_f8,
     unshuffle_f8,
 )
@@ -190,3 +195,14 @@ def test_shuffled_ranges_are_byte_planes_and_refuse_a_partial_value():
     assert unshuffle_f8(planes).tobytes() == values.astype("<f8").tobytes()
     with pytest.raises(ValueError, match="not whole float64"):
         unshuffle_f8(planes[:-1])
+
+
+def test_a_runs_temporary_folder_goes_when_its_fused_scans_do(tiny):
+    _, _, data_dir, _ = tiny
+    folder = tempfile.TemporaryDirectory()
+    shutil.copytree(data_dir, Path(folder.name) / "data")
+    fused = read_fused(Path(folder.name) / "data", folder)
+    assert [seq for seq, _ in fused.scans()] == list(range(1, 401))
+    del fused
+    gc.collect()
+    assert not Path(folder.name).exists()
