@@ -32,9 +32,10 @@ def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
 
     replay = subparsers.add_parser(
         "replay",
-        help="rebuild a map from a server journal",
-        description="Replay a server's journal (its data dir or journal file) and write "
-        "map.yaml, map.pgm and logodds.npy as `map build` does.",
+        help="rebuild a map from a server journal or a run's replay",
+        description="Replay a server's journal (its data dir or journal file) or a run's "
+        "replay.mcap (its folder or the file: every scan its server fused, with its map "
+        "settings) and write map.yaml, map.pgm and logodds.npy as `map build` does.",
     )
     replay.add_argument(
         "source", type=Path, help="server data dir, journal.sqlite3, or a run's folder/replay.mcap"

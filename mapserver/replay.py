@@ -9,14 +9,16 @@ quarantine them, but the journal is not changed."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from mapserver.belief import BeliefGrid
 from mapserver.fleet_clock import FleetClock
 from mapserver.geometry import GridGeometry
 from mapserver.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
-from mapserver.journal_reading import read_records
+from mapserver.journal_reading import ReadRecord, read_records
 from mapserver.scan import Scan
 from mapserver.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service import MAP_SETTINGS_FILE
@@ -42,28 +44,58 @@ def replay_journal(
     the damaged records skipped)."""
     source = Path(source)
     data_dir = source if source.is_dir() else source.parent
-    settings_path = data_dir / MAP_SETTINGS_FILE
+    belief = belief_for(read_settings(data_dir), data_dir / MAP_SETTINGS_FILE)
+    journal_file = source if source.is_file() else source / JOURNAL_FILENAME
+    scans, skipped = journal_scans(journal_file, until)
+    return belief, [scan for _, scan in scans], skipped
+
+
+def read_settings(data_dir: Path) -> dict[str, Any]:
+    """The map settings a server recorded in ``data_dir`` (``MAP_SETTINGS_FILE``, as
+    ``mapserver.service`` writes them); ReplayError when missing or not JSON."""
+    path = Path(data_dir) / MAP_SETTINGS_FILE
     try:
-        recorded = json.loads(settings_path.read_text())
-        belief = BeliefGrid(
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ReplayError(f"{path}: not a map server's settings ({exc})") from None
+
+
+def belief_for(recorded: dict[str, Any], source: object = "map settings") -> BeliefGrid:
+    """An empty belief grid with recorded map settings (grid, sensor model, policy,
+    decay, max clearing range [m], null: unlimited); ReplayError naming ``source`` when
+    they are not a server's map settings."""
+    try:
+        return BeliefGrid(
             GridGeometry(**recorded["grid"]),
             SensorModel(**recorded["sensor_model"]),
             Policy.parse(recorded["policy"]),
             DecayParams(**recorded["decay"]),
             max_clearing_range=recorded["max_clearing_range"] or float("inf"),
         )
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ReplayError(f"{settings_path}: not a map server's settings ({exc})") from None
-    journal_file = source if source.is_file() else source / JOURNAL_FILENAME
-    scans: list[Scan] = []
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ReplayError(f"{source}: not a map server's settings ({exc!r})") from None
+
+
+def journal_scans(
+    journal_file: Path, until: float | None = None
+) -> tuple[list[tuple[int, Scan]], list[Skipped]]:
+    """The journal's intact scans as (seq, scan) in seq order, the order the server
+    fuses them (stamps <= ``until`` [s] when given), and the records skipped."""
+    scans: list[tuple[int, Scan]] = []
     skipped: list[Skipped] = []
+    for record in journal_records(journal_file, until):
+        if record.scan is None:
+            skipped.append(Skipped(record.seq, record.unit_id, record.problem))
+        else:
+            scans.append((record.seq, record.scan))
+    return scans, skipped
+
+
+def journal_records(journal_file: Path, until: float | None = None) -> Iterator[ReadRecord]:
+    """The journal's records one by one as the server reads them (``read_records``);
+    ReplayError when the journal itself cannot be read."""
     try:
         with open_journal_for_replay(journal_file) as journal:
-            for record in read_records(journal, FleetClock(), until=until):
-                if record.scan is None:
-                    skipped.append(Skipped(record.seq, record.unit_id, record.problem))
-                else:
-                    scans.append(record.scan)
+            yield from read_records(journal, FleetClock(), until=until)
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None
-    return belief, scans, skipped

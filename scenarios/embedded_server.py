@@ -39,7 +39,7 @@ class EmbeddedServer:
     ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        data_dir = Path(data_dir)
+        self.data_dir = data_dir = Path(data_dir)
         data_dir.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, "-m", "scenarios.cli", "serve", "--host", "127.0.0.1",
                "--port", str(self.port), "--data-dir", str(data_dir)]  # fmt: skip

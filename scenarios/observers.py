@@ -7,7 +7,8 @@ episode and its last ``StepReport`` (``scenarios.episode``); it never changes th
 The standard set (``StandardObservers``): the replay's scans (every step, sampled per
 unit), plans checked against ground truth (stale-free plans), the freeze detector and
 the evidence of blocking cells, throughput, time to clear (at every map read), unit
-poses for the replay and the live viewer, and costmap snapshots.
+poses for the replay and the live viewer, costmap snapshots and the world's objects
+(``replay_objects``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from mapserver.client import UnitState
 from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
 from scenarios.record import GridSample, PlanSample, ScanSample, UnitSample
+from scenarios.replay_objects import ObjectRecorder
 from scenarios.throughput import ThroughputTracker
 
 if TYPE_CHECKING:
@@ -228,6 +230,7 @@ class StandardObservers:
     units: UnitRecorder
     publisher: UnitPublisher
     grids: GridRecorder
+    objects: ObjectRecorder
 
     @classmethod
     def of(cls, episode: Episode) -> StandardObservers:
@@ -241,13 +244,14 @@ class StandardObservers:
             units=UnitRecorder(opts.record_units_s),
             publisher=UnitPublisher(opts.record_units_s),
             grids=GridRecorder(opts.record_grids_s),
+            objects=ObjectRecorder(opts.record_units_s),
         )
 
     def all(self) -> tuple[Observer, ...]:
         """In the order they run after a step."""
         return (
             self.scans, self.plans, self.freezes, self.throughput, self.clearing,
-            self.units, self.publisher, self.grids,
+            self.units, self.publisher, self.grids, self.objects,
         )  # fmt: skip
 
 

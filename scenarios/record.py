@@ -14,6 +14,7 @@ import numpy as np
 
 from mapserver.geometry import GridGeometry
 from mapserver.scan import PoseStd
+from scenarios.replay_fused import FusedScans
 
 if TYPE_CHECKING:
     from fleet.sim import CollisionEvent  # imports pybullet
@@ -177,7 +178,8 @@ class TripRecord:
 @dataclass
 class RunRecord:
     """A whole run: identity, the map's geometry, the units' body (radius, height [m];
-    None: the fleet's default ``DriveLimits``), and the streams above."""
+    None: the fleet's default ``DriveLimits``), the streams above, and what the run's own
+    map server fused (``fused``; None for a run against an outside server)."""
 
     scenario: str
     policy: str
@@ -196,3 +198,4 @@ class RunRecord:
     metrics: dict[str, object] = field(default_factory=dict)
     unit_radius: float | None = None
     unit_height: float | None = None
+    fused: FusedScans | None = None

@@ -15,18 +15,23 @@ topic                   schema                 one message per
                                                ``object/<id>``, deletions for the gone)
 ``/log``                foxglove.Log           event, freeze, recovery action, stale-free
                                                plan, collision (``replay_log``)
+``/fleetmap/scans``     fleetmap.FusedScan     scan the run's server fused, exactly
+                                               (``replay_fused``)
 ======================  =====================  ==========================================
 
 A scan channel's metadata carries what ``foxglove.LaserScan`` has no field for:
 ``unit_id``, ``range_min``, ``range_max`` [m], ``angle_increment`` [rad] and ``pose_std_xy``
 [m], ``pose_std_yaw`` [rad] (empty when the scan had none), floats as Python ``repr``; a
 unit whose values change gets another channel on the same topic. The file's metadata
-record ``fleetmap.run`` holds the scenario, policy, seed and the map's grid geometry.
+record ``fleetmap.run`` holds the scenario, policy, seed and the map's grid geometry;
+``fleetmap.map_settings`` the run's server's map settings (``replay_fused``).
 
-``read_scans`` gives the scans back as ``mapserver.scan.Scan``: stamps to the nanosecond,
-x, y, angle_min, angle_increment, range limits and pose_std exactly, yaw to ~1e-16 rad
-(through a quaternion; wrapped to (-pi, pi]), ranges exactly as float32 with REP 117
-classes kept (-inf comes back as NaN: both invalid).
+``read_fused_replay`` gives the map settings and the fused scans back exactly, in the
+server's fusion order; ``read_scans`` gives the sampled LaserScans back as
+``mapserver.scan.Scan``: stamps to the nanosecond, x, y, angle_min, angle_increment,
+range limits and pose_std exactly, yaw to ~1e-16 rad (through a quaternion; wrapped to
+(-pi, pi]), ranges exactly as float32 with REP 117 classes kept (-inf comes back as NaN:
+both invalid).
 """
 
 from __future__ import annotations
@@ -69,6 +74,17 @@ from scenarios.foxglove_messages import (
 )
 from scenarios.foxglove_schemas import schema_text
 from scenarios.record import RunRecord, ScanSample
+from scenarios.replay_fused import (
+    FUSED_SCHEMA,
+    FUSED_SCHEMA_NAME,
+    FUSED_TOPIC,
+    MAP_SETTINGS_METADATA,
+    fused_message,
+    fused_scan,
+    in_fusion_order,
+    settings_metadata,
+    settings_of,
+)
 from scenarios.replay_log import run_log
 
 REPLAY_FILENAME = "replay.mcap"
@@ -108,8 +124,9 @@ _OCCUPANCY = _Channel(OCCUPANCY_TOPIC, "foxglove.Grid")
 _COSTMAP = _Channel(COSTMAP_TOPIC, "foxglove.Grid")
 _SCENE = _Channel(SCENE_TOPIC, "foxglove.SceneUpdate")
 _LOG = _Channel(LOG_TOPIC, "foxglove.Log")
+_FUSED = _Channel(FUSED_TOPIC, FUSED_SCHEMA_NAME)
 
-_Item = tuple[int, _Channel, Message]  # (log time [ns], channel, message)
+_Item = tuple[int, _Channel, Message | bytes]  # (log time [ns], channel, message or its JSON)
 
 
 def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
@@ -121,6 +138,8 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
         writer = Writer(f)
         writer.start(profile="", library=LIBRARY)
         writer.add_metadata(RUN_METADATA, _run_metadata(record))
+        if record.fused is not None:
+            writer.add_metadata(MAP_SETTINGS_METADATA, settings_metadata(record.fused.settings))
         schemas: dict[str, int] = {}
         channels: dict[_Channel, int] = {}
         streams = (
@@ -130,12 +149,13 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
             _scans(record),
             _plans(record),
             _log(record),
+            _fused(record),
         )
         for ns, channel, message in heapq.merge(*streams, key=itemgetter(0)):
             if channel not in channels:
                 if channel.schema not in schemas:
                     schemas[channel.schema] = writer.register_schema(
-                        channel.schema, SchemaEncoding.JSONSchema, schema_text(channel.schema)
+                        channel.schema, SchemaEncoding.JSONSchema, _schema_text(channel.schema)
                     )
                 channels[channel] = writer.register_channel(
                     channel.topic,
@@ -143,7 +163,10 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
                     schemas[channel.schema],
                     dict(channel.metadata),
                 )
-            data = orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
+            if isinstance(message, bytes):
+                data = message
+            else:
+                data = orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
             writer.add_message(channels[channel], log_time=ns, data=data, publish_time=ns)
         writer.finish()
     return Path(path)
@@ -168,6 +191,34 @@ def read_scans(path: str | os.PathLike[str], until: float | None = None) -> list
     except (OSError, McapError, ValueError, KeyError, TypeError) as exc:
         raise ReplayFileError(f"{path}: not a readable fleetmap replay ({exc!r})") from None
     return scans
+
+
+def read_fused_replay(
+    path: str | os.PathLike[str], until: float | None = None
+) -> tuple[dict[str, Any], list[Scan]] | None:
+    """(the run's map settings, the scans its server fused in fusion order, those stamped
+    after ``until`` [s] left out), or None for a replay without them (a run against an
+    outside server, or one written before they were kept).
+
+    Raises ReplayFileError naming the file for an unreadable file or a bad message.
+    """
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            settings = next(
+                (settings_of(r.metadata) for r in reader.iter_metadata()
+                 if r.name == MAP_SETTINGS_METADATA),
+                None,
+            )  # fmt: skip
+            if settings is None:
+                return None
+            items = (fused_scan(m.data) for _, _, m in reader.iter_messages([FUSED_TOPIC]))
+            scans = in_fusion_order(items)
+    except (OSError, McapError, ValueError, KeyError, TypeError) as exc:
+        raise ReplayFileError(f"{path}: not a readable fleetmap replay ({exc!r})") from None
+    if until is not None:
+        scans = [scan for scan in scans if scan.stamp <= until]
+    return settings, scans
 
 
 def read_geometry(path: str | os.PathLike[str]) -> GridGeometry:
@@ -224,6 +275,20 @@ def _plans(record: RunRecord) -> Iterator[_Item]:
     for plan in sorted(record.plans, key=_by_stamp):
         channel = _Channel(plan_topic(plan.unit_id), "foxglove.PosesInFrame")
         yield stamp_ns(plan.stamp), channel, poses_in_frame(plan)
+
+
+def _fused(record: RunRecord) -> Iterator[_Item]:
+    if record.fused is None:
+        return
+    for seq, scan in record.fused.scans():
+        yield stamp_ns(scan.stamp), _FUSED, fused_message(seq, scan)
+
+
+def _schema_text(name: str) -> bytes:
+    """The JSON schema text of a channel's schema (Foxglove's, or ``fleetmap.FusedScan``)."""
+    if name == FUSED_SCHEMA_NAME:
+        return orjson.dumps(FUSED_SCHEMA)
+    return schema_text(name)
 
 
 def _log(record: RunRecord) -> Iterator[_Item]:

@@ -2,10 +2,12 @@
 itself is rebuilt into a map like ``map build``; anything else goes to the server-journal
 replay (``mapserver.cli_serve.run_replay``).
 
-A run's replay holds the scans it recorded (sampled, see ``RunOptions.record_scans_s``)
-and its grid; the map is fused with the policy of the run's ``metrics.json`` (``decay``
-without one) and the default sensor model, so it approximates, not equals, the run's
-shared map.
+A run's replay holds every scan its own map server fused and that server's map settings
+(``scenarios.replay_fused``): they are fused in the server's order with its settings, so
+the map equals the server's bit for bit. A replay without them (a run against an outside
+server, or an older file) falls back to its sampled LaserScans (``RunOptions.
+record_scans_s``), fused with the policy of the run's ``metrics.json`` (``decay`` without
+one) and the default sensor model: an approximation of the run's map, said on stderr.
 """
 
 from __future__ import annotations
@@ -18,8 +20,16 @@ from pathlib import Path
 from mapserver.belief import BeliefGrid
 from mapserver.cli_serve import run_replay as run_journal_replay
 from mapserver.cli_serve import write_replayed
+from mapserver.replay import ReplayError, belief_for
+from mapserver.scan import Scan
 from mapserver.sensor_model import Policy
-from scenarios.replay_mcap import REPLAY_FILENAME, ReplayFileError, read_geometry, read_scans
+from scenarios.replay_mcap import (
+    REPLAY_FILENAME,
+    ReplayFileError,
+    read_fused_replay,
+    read_geometry,
+    read_scans,
+)
 
 
 def replay_file_of(source: Path) -> Path | None:
@@ -37,11 +47,27 @@ def run_replay(args: argparse.Namespace) -> int:
     if replay is None:
         return run_journal_replay(args)
     try:
-        geometry = read_geometry(replay)
-        scans = read_scans(replay, until=args.until)
-        metrics = replay.parent / "metrics.json"
-        policy = json.loads(metrics.read_text())["policy"] if metrics.is_file() else "decay"
-    except (ReplayFileError, ValueError, KeyError, OSError) as exc:
+        fused = read_fused_replay(replay, until=args.until)
+        if fused is not None:
+            settings, scans = fused
+            belief = belief_for(settings, replay)
+        else:
+            belief, scans = _approximation(replay, args.until)
+    except (ReplayFileError, ReplayError, ValueError, KeyError, OSError) as exc:
         print(f"fleetmap replay: error: {exc}", file=sys.stderr)
         return 2
-    return write_replayed(BeliefGrid(geometry, policy=Policy.parse(policy)), scans, args)
+    return write_replayed(belief, scans, args)
+
+
+def _approximation(replay: Path, until: float | None) -> tuple[BeliefGrid, list[Scan]]:
+    """The belief grid and sampled LaserScans of a replay without fused scans."""
+    print(
+        f"fleetmap replay: {replay} holds no fused scans (a run against an outside server "
+        "or an older replay): rebuilding from its sampled LaserScans, an approximation",
+        file=sys.stderr,
+    )
+    geometry = read_geometry(replay)
+    scans = read_scans(replay, until=until)
+    metrics = replay.parent / "metrics.json"
+    policy = json.loads(metrics.read_text())["policy"] if metrics.is_file() else "decay"
+    return BeliefGrid(geometry, policy=Policy.parse(policy)), scans

@@ -20,6 +20,7 @@ from scenarios.embedded_server import EmbeddedServer
 from scenarios.episode import Episode, RunOptions
 from scenarios.observers import ProgressReport
 from scenarios.record import RunRecord
+from scenarios.replay_fused import read_fused
 from scenarios.spec import Scenario
 
 __all__ = ["Progress", "RunOptions", "grid_geometry", "run"]
@@ -34,14 +35,18 @@ def run(
     progress: Progress | None = None,
     token: str | None = None,
     announce: Callable[[str], None] | None = None,
+    data_dir: Path | None = None,
 ) -> RunRecord:
-    """Run scenario ``setup`` against ``server_url`` (None: an embedded server of its own;
-    ``token``: the bearer token for a server that needs one); ``progress(now, duration)``
-    [s] after every step."""
-    with tempfile.TemporaryDirectory(prefix="fleetmap-run-") as tmp:
-        server = None
+    """Run scenario ``setup`` against ``server_url`` (None: an embedded server of its own,
+    on ``data_dir``, a temporary one when None; ``token``: the bearer token for a server
+    that needs one); ``progress(now, duration)`` [s] after every step. With an embedded
+    server the record holds what it fused (``RunRecord.fused``, read once it stopped)."""
+    tmp = tempfile.TemporaryDirectory(prefix="fleetmap-run-")  # kept by record.fused
+    server = None
+    try:
         if server_url is None:
-            server = EmbeddedServer(Path(tmp) / "data", setup.server_overrides())
+            data_dir = Path(tmp.name) / "data" if data_dir is None else Path(data_dir)
+            server = EmbeddedServer(data_dir, setup.server_overrides())
             server_url = server.url
             if announce is not None:
                 announce(f"map server for this run: {server_url}/ (the live viewer)")
@@ -53,10 +58,18 @@ def run(
                     episode.reset()
                     while not episode.done:
                         episode.step()
-                    return episode.finish()
+                    record = episode.finish()
         finally:
             if server is not None:
                 server.stop()
+        if server is None:
+            tmp.cleanup()
+        else:  # read while the replay is written; the temporary folder goes with it
+            record.fused = read_fused(server.data_dir, tmp)
+        return record
+    except BaseException:
+        tmp.cleanup()
+        raise
 
 
 def grid_geometry(width_m: float, height_m: float, resolution: float) -> GridGeometry:

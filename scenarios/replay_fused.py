@@ -1,0 +1,143 @@
+"""The scans a run's map server fused and its map settings, as ``replay.mcap`` keeps them
+so that ``fleetmap replay`` rebuilds the server's map bit for bit.
+
+Source: the data dir of the run's own server once it has stopped: its map settings
+(``map-settings.json``: grid, sensor model, policy, decay, max clearing range) and its
+journal read as the server reads it at start-up (``mapserver.replay.journal_records``:
+seq order, damaged records and clock-rule breakers left out), which is the order the
+server fused them in. The journal is read while the replay is written, one scan at a
+time, so a long run's scans are never all in memory.
+
+In the MCAP file:
+
+- channel ``/fleetmap/scans``, JSON messages with the JSON schema ``fleetmap.FusedScan``,
+  one per fused scan, log and publish time its stamp [ns], written in seq order (a run's
+  fleet posts tick by tick, so the stamps never go down along it)::
+
+      {"seq": 17,                      # the server journal's seq (fusion order)
+       "scan": {...},                  # CONTRACT 2.1 scan object without "ranges"
+       "ranges_shuffled": "AAAA..."}   # base64 of the ranges' float64 bytes by plane
+
+  Floats in ``scan`` are written as their shortest round-trip decimal, so they read
+  back as the same float64. ``ranges_shuffled`` holds the journal's own float64 values
+  (NaN invalid, +inf no return), little-endian, byte-shuffled: byte 0 of every beam,
+  then byte 1 of every beam, ..., byte 7 (``shuffle_f8``); the chunk compression (zstd)
+  packs the planes about a fifth smaller than the plain bytes.
+- metadata record ``fleetmap.map_settings``: key ``json``, the settings' JSON text.
+
+A run against an outside server (``fleetmap run --server``) has no data dir to read: its
+replay has neither, and ``fleetmap replay`` falls back to the sampled LaserScans.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import weakref
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from tempfile import TemporaryDirectory
+from typing import Any
+
+import numpy as np
+import orjson
+
+from mapserver.journal import JOURNAL_FILENAME
+from mapserver.replay import journal_records, read_settings
+from mapserver.scan import Scan
+
+FUSED_TOPIC = "/fleetmap/scans"
+FUSED_SCHEMA_NAME = "fleetmap.FusedScan"
+MAP_SETTINGS_METADATA = "fleetmap.map_settings"
+
+FUSED_SCHEMA: dict[str, Any] = {
+    "title": FUSED_SCHEMA_NAME,
+    "type": "object",
+    "properties": {
+        "seq": {"type": "integer", "minimum": 1},
+        "scan": {"type": "object"},
+        "ranges_shuffled": {"type": "string", "contentEncoding": "base64"},
+    },
+    "required": ["seq", "scan", "ranges_shuffled"],
+}
+"""JSON schema of a ``/fleetmap/scans`` message (``scan``: CONTRACT 2.1, no ``ranges``)."""
+
+
+@dataclass(frozen=True)
+class FusedScans:
+    """What a run's server fused: its map settings (as in ``map-settings.json``) and its
+    journal file."""
+
+    settings: dict[str, Any]
+    journal: Path
+
+    def scans(self) -> Iterator[tuple[int, Scan]]:
+        """The fused scans as (journal seq, scan), in seq order, read one at a time."""
+        for record in journal_records(self.journal):
+            if record.scan is not None:
+                yield record.seq, record.scan
+
+
+def read_fused(data_dir: Path, folder: TemporaryDirectory | None = None) -> FusedScans:
+    """The map settings and journal of a stopped server's ``data_dir``
+    (``mapserver.replay.ReplayError`` when it holds no settings); ``folder``, the
+    temporary folder that holds ``data_dir``, is removed when the result is."""
+    fused = FusedScans(read_settings(data_dir), Path(data_dir) / JOURNAL_FILENAME)
+    if folder is not None:
+        weakref.finalize(fused, folder.cleanup)
+    return fused
+
+
+def fused_message(seq: int, scan: Scan) -> bytes:
+    """The ``/fleetmap/scans`` message of one fused scan (module docstring)."""
+    ranges = shuffle_f8(scan.ranges)
+    message = {"seq": seq, "scan": scan.to_dict(with_ranges=False), "ranges_shuffled": ranges}
+    return orjson.dumps(message, default=_base64)
+
+
+def fused_scan(data: bytes) -> tuple[int, Scan]:
+    """(seq, scan) of a ``/fleetmap/scans`` message; ValueError when it is not one."""
+    message = orjson.loads(data)
+    ranges = unshuffle_f8(base64.b64decode(message["ranges_shuffled"], validate=True))
+    return int(message["seq"]), Scan.from_dict({**message["scan"], "ranges": ranges})
+
+
+def shuffle_f8(values: np.ndarray) -> bytes:
+    """The little-endian float64 bytes of ``values`` grouped by byte plane: byte 0 of
+    each value, then byte 1 of each, ..., byte 7."""
+    planes = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(-1, 8)
+    return planes.T.tobytes()
+
+
+def unshuffle_f8(data: bytes) -> np.ndarray:
+    """The float64 values of ``shuffle_f8`` bytes (ValueError: not whole values)."""
+    if len(data) % 8:
+        raise ValueError(f"{len(data)} bytes are not whole float64 values")
+    planes = np.frombuffer(data, dtype=np.uint8).reshape(8, -1)
+    return np.ascontiguousarray(planes.T).view("<f8").reshape(-1)
+
+
+def in_fusion_order(items: Iterable[tuple[int, Scan]]) -> list[Scan]:
+    """The scans of (seq, scan) items in seq order; ValueError when a seq repeats."""
+    ordered = sorted(items, key=lambda item: item[0])
+    seqs = [seq for seq, _ in ordered]
+    if len(set(seqs)) != len(seqs):
+        raise ValueError("a /fleetmap/scans seq appears twice")
+    return [scan for _, scan in ordered]
+
+
+def settings_metadata(settings: dict[str, Any]) -> dict[str, str]:
+    """The ``fleetmap.map_settings`` metadata record's content."""
+    return {"json": json.dumps(settings, sort_keys=True)}
+
+
+def settings_of(metadata: dict[str, str]) -> dict[str, Any]:
+    """The map settings of a ``fleetmap.map_settings`` record (ValueError: not JSON)."""
+    return json.loads(metadata["json"])
+
+
+def _base64(value: Any) -> str:
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    raise TypeError(f"cannot encode {type(value).__name__}")
