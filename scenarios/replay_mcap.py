@@ -15,6 +15,7 @@ topic                   schema                 one message per
                                                ``object/<id>``, deletions for the gone)
 ``/log``                foxglove.Log           event, freeze, recovery action, stale-free
                                                plan, collision (``replay_log``)
+``/metrics/map_truth``  fleetmap.MapTruth      map read (``map_truth_channel``)
 ======================  =====================  ==========================================
 
 A scan channel's metadata carries what ``foxglove.LaserScan`` has no field for:
@@ -68,6 +69,12 @@ from scenarios.foxglove_messages import (
     unit_entity,
 )
 from scenarios.foxglove_schemas import schema_text
+from scenarios.map_truth_channel import (
+    MAP_TRUTH_SCHEMA,
+    MAP_TRUTH_TOPIC,
+    map_truth_message,
+    map_truth_schema_text,
+)
 from scenarios.record import RunRecord, ScanSample
 from scenarios.replay_log import run_log
 
@@ -108,6 +115,7 @@ _OCCUPANCY = _Channel(OCCUPANCY_TOPIC, "foxglove.Grid")
 _COSTMAP = _Channel(COSTMAP_TOPIC, "foxglove.Grid")
 _SCENE = _Channel(SCENE_TOPIC, "foxglove.SceneUpdate")
 _LOG = _Channel(LOG_TOPIC, "foxglove.Log")
+_MAP_TRUTH = _Channel(MAP_TRUTH_TOPIC, MAP_TRUTH_SCHEMA)
 
 _Item = tuple[int, _Channel, Message]  # (log time [ns], channel, message)
 
@@ -130,12 +138,13 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
             _scans(record),
             _plans(record),
             _log(record),
+            _map_truth(record),
         )
         for ns, channel, message in heapq.merge(*streams, key=itemgetter(0)):
             if channel not in channels:
                 if channel.schema not in schemas:
                     schemas[channel.schema] = writer.register_schema(
-                        channel.schema, SchemaEncoding.JSONSchema, schema_text(channel.schema)
+                        channel.schema, SchemaEncoding.JSONSchema, _schema_text(channel.schema)
                     )
                 channels[channel] = writer.register_channel(
                     channel.topic,
@@ -229,6 +238,17 @@ def _plans(record: RunRecord) -> Iterator[_Item]:
 def _log(record: RunRecord) -> Iterator[_Item]:
     for line in run_log(record):
         yield stamp_ns(line.stamp), _LOG, log(line.stamp, line.level, line.name, line.message)
+
+
+def _map_truth(record: RunRecord) -> Iterator[_Item]:
+    """One ``/metrics/map_truth`` message per map read (``scenarios.map_truth_channel``)."""
+    for sample in sorted(record.map_truth, key=_by_stamp):
+        yield stamp_ns(sample.stamp), _MAP_TRUTH, map_truth_message(sample)
+
+
+def _schema_text(name: str) -> bytes:
+    """A channel's schema text: the Foxglove schemas, and fleetmap's ``fleetmap.MapTruth``."""
+    return map_truth_schema_text() if name == MAP_TRUTH_SCHEMA else schema_text(name)
 
 
 # ------------------------------------------------------------------------------ scans
