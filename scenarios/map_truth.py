@@ -5,13 +5,19 @@ cell by cell with the ground-truth costmap (``fleet.ground_truth.GroundTruth``: 
 world's true geometry rasterised and inflated as the server inflates):
 
 - ``phantom_cells`` [cells]: INSCRIBED or LETHAL in the shared costmap, free in truth.
-  "Free in truth" is a truth cost below INSCRIBED (FREE or graded): no obstacle under
-  the cell and none within the inscribed radius. A truth INSCRIBED cell is not free: a
-  map that puts an obstacle one cell beyond the true face (the truth's rasterisation
-  may be a cell thinner than the LiDAR's endpoints) still blocks only cells the truth
-  blocks for a unit's centre, so it is no phantom.
+  "Free in truth": no truth cell INSCRIBED or LETHAL within ``TOLERANCE_CELLS`` (1) of
+  it, the cell itself included (so truth costs 0..252 all around it).
 - ``forgotten_cells`` [cells]: LETHAL in truth, below INSCRIBED in the shared costmap
-  (FREE or graded; UNKNOWN 255 is not forgotten, it was never claimed free).
+  (FREE or graded; UNKNOWN 255 is not forgotten, it was never claimed free), with no
+  shared LETHAL cell within ``TOLERANCE_CELLS`` of it.
+
+  The tolerance is the rasterisation's: the truth marks a cell occupied only when its
+  centre lies in the obstacle, while a LiDAR endpoint on a face lands in the cell the
+  face cuts, so a map that sees perfectly may hold an obstacle's edge one cell outside
+  (or inside) the truth's, and its inscribed band one cell further out. Cell for cell
+  (``tolerance_cells=0``) that ring along every face would count: on ``static_shift``
+  (nothing moves but the units; decay, seed 0) 1,928 phantom cells at the end, each a
+  shared INSCRIBED cell one beyond the truth's inscribed band; 0 with the tolerance.
 - ``unknown_share`` [1]: of the reachable floor, the share the shared costmap calls
   UNKNOWN. The reachable floor: the truth cells below INSCRIBED connected (8-connected,
   as the grid planner moves) to a unit's start cell, ``reachable_floor``; a start cell
@@ -50,6 +56,8 @@ KEYS = ("phantom_cells", "forgotten_cells", "unknown_share")
 MEAN_DECIMALS = 3
 SHARE_DECIMALS = 6
 
+TOLERANCE_CELLS = 1
+"""[cells] how far the map's obstacle edge may lie from the truth's and still agree."""
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 
 
@@ -59,15 +67,19 @@ def measure(
     truth: np.ndarray,
     reachable: np.ndarray,
     ignore: np.ndarray | None = None,
+    tolerance_cells: int = TOLERANCE_CELLS,
 ) -> MapTruthSample:
     """The three numbers (module docstring) at sim time ``stamp`` [s] for the shared and
     the truth costmaps (uint8 Nav2 costs, same shape), the reachable floor (bool, same
-    shape) and the cells to leave out (bool, same shape; None: none)."""
+    shape) and the cells to leave out (bool, same shape; None: none), with the
+    rasterisation tolerance ``tolerance_cells`` [cells] (0: cell for cell)."""
     if not (shared.shape == truth.shape == reachable.shape):
         raise ValueError(f"shapes differ: {shared.shape}, {truth.shape}, {reachable.shape}")
     keep = np.ones(shared.shape, dtype=bool) if ignore is None else ~ignore
-    phantom = (shared >= INSCRIBED) & (shared != UNKNOWN) & (truth < INSCRIBED)
-    forgotten = (truth == LETHAL) & (shared < INSCRIBED)
+    truth_blocks = _near(truth >= INSCRIBED, tolerance_cells)  # the truth has no UNKNOWN
+    map_lethal = _near(shared == LETHAL, tolerance_cells)
+    phantom = (shared >= INSCRIBED) & (shared != UNKNOWN) & ~truth_blocks
+    forgotten = (truth == LETHAL) & (shared < INSCRIBED) & ~map_lethal
     floor = reachable & keep
     floor_cells = int(np.count_nonzero(floor))
     unknown = int(np.count_nonzero(floor & (shared == UNKNOWN)))
@@ -77,6 +89,13 @@ def measure(
         int(np.count_nonzero(forgotten & keep)),
         unknown / floor_cells if floor_cells else 0.0,
     )
+
+
+def _near(mask: np.ndarray, cells: int) -> np.ndarray:
+    """``mask`` grown by ``cells`` in every direction (a square: 8-neighbourhood)."""
+    if cells <= 0:
+        return mask
+    return ndimage.binary_dilation(mask, structure=np.ones((2 * cells + 1,) * 2, dtype=bool))
 
 
 def reachable_floor(truth: np.ndarray, starts: Iterable[tuple[int, int]]) -> np.ndarray:

@@ -36,19 +36,38 @@ REACHABLE[2:, :] = True
 REACHABLE[2, 1] = REACHABLE[3, 4] = False
 
 
-def test_counts_on_a_hand_made_map():
+def test_counts_cell_for_cell_on_a_hand_made_map():
     # phantom: (0,2) 253 on truth 0, (1,0) 254 on 0, (3,3) 254 on 0; not (0,1) (lethal in
     # both) nor (1,4) (inscribed in both).
     # forgotten: truth-lethal (1,1) reads 0 and (1,2) reads 100; not (0,1) (lethal) nor
     # (3,4) (unknown: never claimed free).
     # unknown: of the 8 reachable cells, (3,0) and (3,1).
-    assert measure(2.5, SHARED, TRUTH, REACHABLE) == MapTruthSample(2.5, 3, 2, 2 / 8)
+    sample = measure(2.5, SHARED, TRUTH, REACHABLE, tolerance_cells=0)
+    assert sample == MapTruthSample(2.5, 3, 2, 2 / 8)
 
 
-def test_cells_under_a_unit_count_nowhere():
-    ignore = np.zeros(SHARED.shape, dtype=bool)
-    ignore[1, 0] = ignore[3, 0] = ignore[1, 1] = True  # a phantom, an unknown, a forgotten
-    assert measure(0.0, SHARED, TRUTH, REACHABLE, ignore) == MapTruthSample(0.0, 2, 1, 1 / 7)
+def test_counts_within_one_cell_of_the_truth_on_a_hand_made_map():
+    # every phantom of the cell-for-cell count touches a truth-blocked cell ((0,1), (1,1),
+    # (3,4)), and both forgotten cells touch the map's lethal (0,1).
+    assert measure(2.5, SHARED, TRUTH, REACHABLE) == MapTruthSample(2.5, 0, 0, 2 / 8)
+
+
+NOWHERE = np.zeros((1, 8), dtype=bool)
+
+
+def test_a_phantom_more_than_a_cell_from_the_truths_blocked_cells_counts():
+    truth = costs([254, 253, 100, 0, 0, 0, 0, 0])
+    shared = costs([255, 254, 253, 253, 0, 254, 0, 0])  # blocked 1, 2, 3 and 5
+    assert measure(0.0, shared, truth, NOWHERE, tolerance_cells=0).phantom_cells == 3
+    assert measure(0.0, shared, truth, NOWHERE).phantom_cells == 2  # 3 and 5
+    assert measure(0.0, shared, truth, NOWHERE, tolerance_cells=2).phantom_cells == 1  # 5
+
+
+def test_a_forgotten_cell_more_than_a_cell_from_the_maps_lethal_counts():
+    truth = costs([0, 254, 254, 254, 254, 0, 0, 0])
+    shared = costs([0, 0, 0, 0, 254, 0, 0, 0])  # the map holds the pod's last cell
+    assert measure(0.0, shared, truth, NOWHERE, tolerance_cells=0).forgotten_cells == 3
+    assert measure(0.0, shared, truth, NOWHERE).forgotten_cells == 2  # 1 and 2
 
 
 def test_a_perfect_map_has_no_phantom_or_forgotten_cell_and_nothing_unknown():
