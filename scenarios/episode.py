@@ -49,6 +49,7 @@ from scenarios.collisions_json import collision_counts
 from scenarios.dispatch import Dispatcher
 from scenarios.evidence import freeze_records
 from scenarios.fleet_filter import FleetMemberFilter
+from scenarios.map_truth import summary as map_truth_summary
 from scenarios.observers import Observer, Schedule, StandardObservers
 from scenarios.record import EventRecord, RunRecord
 from scenarios.spec import Scenario
@@ -358,6 +359,7 @@ class Episode:
             "stale_free_plans": sum(1 for p in self.record.plans if p.stale_free),
             **collision_counts(self.record),  # collisions (the fleet's), scenario_collisions
             "time_to_clear_s": [None if t is None else round(t, 3) for t in self.clearing.times()],
+            "map_truth": map_truth_summary(self.record.map_truth),
             "replans": replans,
             "deadlocks": self.coordinator.deadlocks,
             "scans_fused": self.poster.poster.posted,

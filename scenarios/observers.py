@@ -6,9 +6,9 @@ episode and its last ``StepReport`` (``scenarios.episode``); it never changes th
 
 The standard set (``StandardObservers``): the replay's scans (every step, sampled per
 unit), plans checked against ground truth (stale-free plans), the freeze detector and
-the evidence of blocking cells, throughput, time to clear (at every map read), unit
-poses for the replay and the live viewer, costmap snapshots and the world's objects
-(``replay_objects``).
+the evidence of blocking cells, throughput, time to clear and the map against truth
+(both at every map read), unit poses for the replay and the live viewer, costmap
+snapshots and the world's objects (``replay_objects``).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import numpy as np
 
 from mapserver.client import UnitState
 from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
+from scenarios.map_truth import footprints, measure, reachable_floor
 from scenarios.record import GridSample, PlanSample, ScanSample, UnitSample
 from scenarios.replay_objects import ObjectRecorder
 from scenarios.throughput import ThroughputTracker
@@ -170,6 +171,31 @@ class ClearingWatch(_Observer):
         episode.clearing.observe(episode.costs.data, episode.report.now)
 
 
+class MapTruthWatch(_Observer):
+    """The shared costmap against ground truth at every map read (``scenarios.map_truth``,
+    ``record.map_truth``): the reachable floor from the units' start cells, flood-filled
+    again only when the world changed, and the units' footprints at the read left out."""
+
+    def __init__(self, episode: Episode, every_s: float) -> None:
+        self.every_s = every_s
+        specs = episode.setup.unit_specs()
+        self.starts = [episode.geometry.world_to_cell(s.start.x, s.start.y) for s in specs]
+        self.radius = {s.unit_id: s.drive.radius for s in specs}
+        self._revision: int | None = None
+        self._reachable: np.ndarray | None = None
+
+    def observe(self, episode: Episode) -> None:
+        now = episode.report.now
+        truth = episode.truth.costmap(now)
+        if self._reachable is None or episode.world.revision != self._revision:
+            self._reachable = reachable_floor(truth, self.starts)
+            self._revision = episode.world.revision
+        bodies = [(x, y, self.radius[uid]) for uid, (x, y) in episode.report.positions.items()]
+        ignore = footprints(episode.geometry, bodies)
+        sample = measure(now, episode.costs.data, truth, self._reachable, ignore)
+        episode.record.map_truth.append(sample)
+
+
 class UnitRecorder(_Observer):
     """Every unit's pose, motion, freeze and task every ``every_s`` [s] (the replay)."""
 
@@ -227,6 +253,7 @@ class StandardObservers:
     freezes: FreezeWatch
     throughput: Throughput
     clearing: ClearingWatch
+    map_truth: MapTruthWatch
     units: UnitRecorder
     publisher: UnitPublisher
     grids: GridRecorder
@@ -241,6 +268,7 @@ class StandardObservers:
             freezes=FreezeWatch(),
             throughput=Throughput(episode),
             clearing=ClearingWatch(opts.map_read_s),
+            map_truth=MapTruthWatch(episode, opts.map_read_s),
             units=UnitRecorder(opts.record_units_s),
             publisher=UnitPublisher(opts.record_units_s),
             grids=GridRecorder(opts.record_grids_s),
@@ -251,7 +279,7 @@ class StandardObservers:
         """In the order they run after a step."""
         return (
             self.scans, self.plans, self.freezes, self.throughput, self.clearing,
-            self.units, self.publisher, self.grids, self.objects,
+            self.map_truth, self.units, self.publisher, self.grids, self.objects,
         )  # fmt: skip
 
 

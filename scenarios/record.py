@@ -98,6 +98,18 @@ class GridSample:
 
 
 @dataclass(frozen=True)
+class MapTruthSample:
+    """The shared costmap against ground truth at a map read at ``stamp`` [s]
+    (``scenarios.map_truth``): phantom and forgotten cells [cells], the share [1] of the
+    reachable floor the map calls unknown."""
+
+    stamp: float
+    phantom_cells: int
+    forgotten_cells: int
+    unknown_share: float
+
+
+@dataclass(frozen=True)
 class ScanSample:
     """A LiDAR scan as posted: the pose it was sent with and its ranges [m] (float32;
     inf = no return, NaN = invalid), and the ``pose_std`` it was sent with (None: none)."""
@@ -190,6 +202,7 @@ class RunRecord:
     events: list[EventRecord] = field(default_factory=list)
     objects: list[ObjectsSample] = field(default_factory=list)
     grids: list[GridSample] = field(default_factory=list)
+    map_truth: list[MapTruthSample] = field(default_factory=list)
     scans: list[ScanSample] = field(default_factory=list)
     freezes: list[FreezeRecord] = field(default_factory=list)
     trips: list[TripRecord] = field(default_factory=list)

@@ -17,6 +17,7 @@ topic                   schema                 one message per
                                                plan, collision (``replay_log``)
 ``/fleetmap/scans``     fleetmap.FusedScan     scan the run's server fused, exactly
                                                (``replay_fused``)
+``/metrics/map_truth``  fleetmap.MapTruth      map read (``map_truth_channel``)
 ======================  =====================  ==========================================
 
 A scan channel's metadata carries what ``foxglove.LaserScan`` has no field for:
@@ -73,6 +74,12 @@ from scenarios.foxglove_messages import (
     unit_entity,
 )
 from scenarios.foxglove_schemas import schema_text
+from scenarios.map_truth_channel import (
+    MAP_TRUTH_SCHEMA,
+    MAP_TRUTH_TOPIC,
+    map_truth_message,
+    map_truth_schema_text,
+)
 from scenarios.record import RunRecord, ScanSample
 from scenarios.replay_fused import (
     FUSED_SCHEMA,
@@ -125,6 +132,7 @@ _COSTMAP = _Channel(COSTMAP_TOPIC, "foxglove.Grid")
 _SCENE = _Channel(SCENE_TOPIC, "foxglove.SceneUpdate")
 _LOG = _Channel(LOG_TOPIC, "foxglove.Log")
 _FUSED = _Channel(FUSED_TOPIC, FUSED_SCHEMA_NAME)
+_MAP_TRUTH = _Channel(MAP_TRUTH_TOPIC, MAP_TRUTH_SCHEMA)
 
 _Item = tuple[int, _Channel, Message | bytes]  # (log time [ns], channel, message or its JSON)
 
@@ -150,6 +158,7 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
             _plans(record),
             _log(record),
             _fused(record),
+            _map_truth(record),
         )
         for ns, channel, message in heapq.merge(*streams, key=itemgetter(0)):
             if channel not in channels:
@@ -284,16 +293,25 @@ def _fused(record: RunRecord) -> Iterator[_Item]:
         yield stamp_ns(scan.stamp), _FUSED, fused_message(seq, scan)
 
 
-def _schema_text(name: str) -> bytes:
-    """The JSON schema text of a channel's schema (Foxglove's, or ``fleetmap.FusedScan``)."""
-    if name == FUSED_SCHEMA_NAME:
-        return orjson.dumps(FUSED_SCHEMA)
-    return schema_text(name)
-
-
 def _log(record: RunRecord) -> Iterator[_Item]:
     for line in run_log(record):
         yield stamp_ns(line.stamp), _LOG, log(line.stamp, line.level, line.name, line.message)
+
+
+def _map_truth(record: RunRecord) -> Iterator[_Item]:
+    """One ``/metrics/map_truth`` message per map read (``scenarios.map_truth_channel``)."""
+    for sample in sorted(record.map_truth, key=_by_stamp):
+        yield stamp_ns(sample.stamp), _MAP_TRUTH, map_truth_message(sample)
+
+
+def _schema_text(name: str) -> bytes:
+    """A channel's schema text: the Foxglove schemas, and fleetmap's own
+    ``fleetmap.FusedScan`` and ``fleetmap.MapTruth``."""
+    if name == FUSED_SCHEMA_NAME:
+        return orjson.dumps(FUSED_SCHEMA)
+    if name == MAP_TRUTH_SCHEMA:
+        return map_truth_schema_text()
+    return schema_text(name)
 
 
 # ------------------------------------------------------------------------------ scans

@@ -8,6 +8,9 @@
 - Top right, a timeline per unit [s]: freezes as bars (red phantom, blue true block),
   events as dashed green lines under the same labels, collisions as the same stars and
   diamonds on the unit's row.
+- Middle right, the shared map against ground truth at every map read: phantom and
+  forgotten cells, and the unknown share of the reachable floor
+  (``scenarios.report_map_truth``).
 - Bottom right, time to clear [s] per removed (or moved) object, in removal order; one
   never cleared gets a hatched bar from its removal to the end of the run, "never"; and
   beside it a table of the throughput metrics (docs/throughput.md; "n/a" where a mean
@@ -38,6 +41,7 @@ from matplotlib.patches import Patch
 from mapserver.atomic import atomic_output
 from mapserver.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
 from scenarios.record import EventRecord, FreezeRecord, RunRecord
+from scenarios.report_map_truth import draw_map_truth
 
 FIGURE_INCHES = (16.0, 9.0)
 DPI = 100  # -> 1600 x 900 px
@@ -83,11 +87,12 @@ def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
     """Draw ``record`` as ``report.png`` (1600 x 900 px) at ``path`` atomically."""
     figure = Figure(figsize=FIGURE_INCHES, dpi=DPI, layout="constrained")
     FigureCanvasAgg(figure)
-    grid = figure.add_gridspec(2, 2, width_ratios=(1.15, 1.0), height_ratios=(1.25, 1.0))
+    grid = figure.add_gridspec(3, 2, width_ratios=(1.15, 1.0), height_ratios=(1.1, 0.8, 1.0))
     end = run_end(record)
     _draw_map(figure.add_subplot(grid[:, 0]), record)
     _draw_timeline(figure.add_subplot(grid[0, 1]), record, end)
-    bottom = grid[1, 1].subgridspec(1, 2, width_ratios=(1.6, 1.0))
+    draw_map_truth(figure.add_subplot(grid[1, 1]), record, end)
+    bottom = grid[2, 1].subgridspec(1, 2, width_ratios=(1.6, 1.0))
     _draw_time_to_clear(figure.add_subplot(bottom[0, 0]), record, end)
     _draw_throughput(figure.add_subplot(bottom[0, 1]), record)
     text = title(record)
@@ -129,7 +134,9 @@ def run_end(record: RunRecord) -> float:
         stamps.append(float(sim_seconds))
     stamps += [f.start + f.duration for f in record.freezes]
     stamps += [c.time for c in record.collisions]
-    for stream in (record.units, record.events, record.grids, record.plans, record.scans):
+    streams = (record.units, record.events, record.grids, record.plans, record.scans,
+               record.map_truth)  # fmt: skip
+    for stream in streams:
         if stream:
             stamps.append(max(s.stamp for s in stream))
     return max(stamps)

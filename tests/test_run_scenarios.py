@@ -17,7 +17,7 @@ CONTRACT_KEYS = {
     "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes", "stale_free_plans",
     "collisions", "time_to_clear_s", "replans", "deadlocks", "scans_fused",
     "trips_per_unit_hour", "ideal_trip_s", "trip_time_ratio", "fleet_efficiency",
-    "moving_share", "mean_speed_moving", "wait_s",
+    "moving_share", "mean_speed_moving", "wait_s", "map_truth",
 }  # fmt: skip
 WAIT_CAUSES = {"traffic", "freeze", "dwell", "breakdown", "turn"}  # "turn": beyond CONTRACT 3
 
@@ -53,10 +53,17 @@ def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     assert set(metrics["wait_s"]) == WAIT_CAUSES
     assert all(isinstance(s, float) and s >= 0 for s in metrics["wait_s"].values())
     assert sum(metrics["wait_s"].values()) <= 2 * 20.0  # unit-seconds: two units, 20 s
+    truth = metrics["map_truth"]
+    assert set(truth) == {"phantom_cells", "forgotten_cells", "unknown_share"}
+    for key in ("phantom_cells", "forgotten_cells"):
+        assert isinstance(truth[key]["final"], int) and truth[key]["final"] >= 0, key
+        assert truth[key]["mean"] >= 0, key
+    assert all(0.0 <= truth["unknown_share"][k] <= 1.0 for k in ("mean", "final"))
     assert (out / "report.png").read_bytes()[:4] == b"\x89PNG"
     with (out / "replay.mcap").open("rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
-    assert {"/map/costmap", "/map/occupancy", "/scene", "/log", "/units/u1/scan"} <= topics
+    assert {"/map/costmap", "/map/occupancy", "/scene", "/log", "/units/u1/scan",
+            "/metrics/map_truth"} <= topics  # fmt: skip
 
 
 def test_same_seed_same_metrics_with_and_without_a_server(first_run, tmp_path):
