@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import httpx
@@ -18,7 +18,7 @@ from mapserver.client import MapClient
 from mapserver.geometry import GridGeometry
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.episode import Episode, RunOptions
-from scenarios.observers import ProgressReport
+from scenarios.observers import Observer, ProgressReport
 from scenarios.record import RunRecord
 from scenarios.spec import Scenario
 
@@ -34,10 +34,11 @@ def run(
     progress: Progress | None = None,
     token: str | None = None,
     announce: Callable[[str], None] | None = None,
+    observers: Sequence[Observer] = (),
 ) -> RunRecord:
     """Run scenario ``setup`` against ``server_url`` (None: an embedded server of its own;
     ``token``: the bearer token for a server that needs one); ``progress(now, duration)``
-    [s] after every step."""
+    [s] after every step; ``observers``: more observers of the episode (a benchmark's)."""
     with tempfile.TemporaryDirectory(prefix="fleetmap-run-") as tmp:
         server = None
         if server_url is None:
@@ -48,7 +49,7 @@ def run(
         try:
             with httpx.Client(base_url=server_url, timeout=60) as http:
                 client = MapClient(http, token=token, timeout=60)
-                extra = [ProgressReport(progress)] if progress is not None else []
+                extra = [*observers, *([ProgressReport(progress)] if progress else [])]
                 with Episode(setup, client, options, extra) as episode:
                     episode.reset()
                     while not episode.done:
