@@ -17,8 +17,8 @@ Defaults (CONTRACT section 1), in both units:
 - ``occupied_threshold = 0.65``  # = +0.619 log-odds
 - ``free_threshold = 0.25``      # = -1.099 log-odds
 - ``p_miss_no_return = 0.45``  # = -0.201 log-odds per no-return pass, half of p_miss's
-- ``no_return_range = 3.0``    # [m] how far a no-return beam clears (Nav2's
-  ``raytrace_max_range`` default)
+- ``no_return_range = 1.0``    # [m] how far a no-return beam clears: the unit's own
+  surroundings, not through the rack across a 2 m aisle (docs/no-return.md measures it)
 
 A no-return beam (REP 117: a range > range_max or +inf) reads nothing: the sensor saw no
 surface, or it dropped the beam (dust, a black or shiny surface, a glancing angle). It is
@@ -104,7 +104,7 @@ class SensorModel:
     occupied_threshold: float = 0.65
     free_threshold: float = 0.25
     p_miss_no_return: float = 0.45
-    no_return_range: float | None = 3.0
+    no_return_range: float | None = 1.0
 
     def __post_init__(self) -> None:
         for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):

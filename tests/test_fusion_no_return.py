@@ -13,7 +13,8 @@ from mapserver.belief import BeliefGrid
 from mapserver.geometry import GridGeometry
 from mapserver.sensor_model import Policy, SensorModel, logit
 
-M = SensorModel()  # p_miss_no_return 0.45, no_return_range 3 m
+M = SensorModel()  # p_miss_no_return 0.45, no_return_range 1 m
+FAR = SensorModel(no_return_range=5.0)
 
 
 def row(model=M, width=30, policy=Policy.DECAY, **kw) -> BeliefGrid:
@@ -22,12 +23,12 @@ def row(model=M, width=30, policy=Policy.DECAY, **kw) -> BeliefGrid:
 
 def test_a_no_return_beam_moves_cells_by_its_own_log_odds_out_to_its_range_only():
     b = row()
-    result = b.fuse(make_scan([math.inf], range_max=20.0))  # from x = 0.5: to x = 3.5
+    result = b.fuse(make_scan([math.inf], range_max=20.0))  # from x = 0.5: to x = 1.5
     lo = b.raw_log_odds()[0]
-    assert lo[:4] == pytest.approx([math.log(0.45 / 0.55)] * 4)  # -0.2007 each, cells 0..3
-    assert np.all(lo[4:] == 0.0)
-    assert result.cells == 4
-    assert np.all(np.isnan(b.last_observed()[0, 4:]))
+    assert lo[:2] == pytest.approx([math.log(0.45 / 0.55)] * 2)  # -0.2007 each, cells 0, 1
+    assert np.all(lo[2:] == 0.0)
+    assert result.cells == 2
+    assert np.all(np.isnan(b.last_observed()[0, 2:]))
 
 
 def test_a_reading_beyond_range_max_is_a_no_return_too():
@@ -79,7 +80,7 @@ def test_repeated_no_return_scans_add_up_and_are_clamped_like_any_evidence():
 def test_a_saturated_wall_cell_survives_dropouts_that_would_have_cleared_it():
     """Under ``decay``, a cell held at clamp_max by returns needs 5 / 0.2007 = 25 no-return
     passes to reach the prior (12.3 at p_miss: twice as many)."""
-    b = row()
+    b = row(FAR)
     for _ in range(10):
         b.fuse(make_scan([2.0]))  # cell 2 hit ten times: clamped at +5
     for _ in range(12):
@@ -97,7 +98,7 @@ def test_at_the_prior_no_return_beams_change_nothing():
 
 
 def test_binary_ignores_no_return_beams_as_nav2_does_by_default():
-    b = row(policy=Policy.BINARY)
+    b = row(FAR, policy=Policy.BINARY)
     b.fuse(make_scan([2.0]))
     result = b.fuse(make_scan([math.inf], stamp=1.0))  # would cross the wall at cell 2
     assert result.cells == 0

@@ -12,9 +12,9 @@ def test_defaults_are_the_contract_values_in_log_odds():
     assert m.l_hit == pytest.approx(0.8473, abs=1e-4)
     assert m.l_miss == pytest.approx(-0.4055, abs=1e-4)
     assert m.l0 == 0.0
-    assert (m.p_miss_no_return, m.no_return_range) == (0.45, 3.0)
+    assert (m.p_miss_no_return, m.no_return_range) == (0.45, 1.0)
     assert m.l_miss_no_return == pytest.approx(math.log(0.45 / 0.55))  # -0.2007
-    assert m.no_return_cap == 3.0
+    assert m.no_return_cap == 1.0
     assert SensorModel(no_return_range=None).no_return_cap == math.inf
 
 

@@ -295,7 +295,7 @@ def test_empty_config_file_means_defaults(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------- no-return beams
 def test_no_return_settings_default_to_the_sensor_model_and_can_be_set() -> None:
     s = load_settings(None, {})
-    assert (s.sensor_model.p_miss_no_return, s.sensor_model.no_return_range) == (0.45, 3.0)
+    assert (s.sensor_model.p_miss_no_return, s.sensor_model.no_return_range) == (0.45, 1.0)
     s = load_settings(None, {"sensor_model": {"p_miss_no_return": 0.5, "no_return_range": None}})
     assert s.build_sensor_model() == SensorModel(p_miss_no_return=0.5, no_return_range=None)
 
