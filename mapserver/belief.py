@@ -112,7 +112,7 @@ class BeliefGrid:
     policy: ``decay`` (default), ``binary`` or ``sticky`` (see ``Policy``).
     decay: half lives and fade bound (used by the ``decay`` policy only).
     max_clearing_range: [m] cap on how far a no-return beam clears (default: the scan's
-        own range_max, as REP 117 implies).
+        own range_max, as REP 117 implies), on top of ``sensor_model.no_return_range``.
     """
 
     def __init__(
@@ -166,7 +166,7 @@ class BeliefGrid:
                 scan.angle_increment,
                 scan.range_min,
                 scan.range_max,
-                min(scan.range_max, self.max_clearing_range),
+                self.no_return_clearing(scan.range_max),
                 scan.stamp,
                 std.xy**2 if std is not None else 0.0,
                 std.yaw**2 if std is not None else 0.0,
@@ -193,6 +193,7 @@ class BeliefGrid:
             params,
             m.l_hit,
             m.l_miss,
+            m.l_miss_no_return,
             m.l0,
             m.clamp_min,
             m.clamp_max,
@@ -208,6 +209,19 @@ class BeliefGrid:
             FusionResult(cells=int(c), box=CellBox(*(int(v) for v in box)))
             for c, box in zip(cells.tolist(), boxes.tolist(), strict=True)
         ]
+
+    def no_return_clearing(self, range_max: float) -> float:
+        """[m] how far a no-return beam of a scan with ``range_max`` [m] clears: out to
+        ``no_return_range`` for the log-odds policies (0, not at all, when
+        ``p_miss_no_return`` is the prior: no evidence); for ``binary``, the Nav2 baseline
+        as the contract's range semantics have it (Nav2's obstacle layer with
+        ``inf_is_valid: true``), out to ``range_max``. ``max_clearing_range`` caps both."""
+        m = self.sensor_model
+        if self.policy is Policy.BINARY:
+            return min(range_max, self.max_clearing_range)
+        if m.p_miss_no_return == m.prior:
+            return 0.0
+        return min(range_max, self.max_clearing_range, m.no_return_cap)
 
     # ------------------------------------------------------------------ reads
     @property

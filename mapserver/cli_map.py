@@ -23,6 +23,16 @@ def xy_pair(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _range_or_none(text: str) -> float | None:
+    """argparse type for ``--no-return-range``: metres, or ``none`` (no cap)."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected metres or 'none', got {text!r}") from None
+
+
 def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
     """The sensor-model, policy and decay flags shared by ``map build`` and the server."""
     d, dd = SensorModel(), DecayParams()
@@ -35,6 +45,12 @@ def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
         "--occupied-threshold", type=float, default=d.occupied_threshold, help="probability"
     )
     group.add_argument("--free-threshold", type=float, default=d.free_threshold, help="probability")
+    no_return = "P(occupied | a no-return beam passes), in [p-miss, 0.5]; 0.5: ignore them"
+    group.add_argument("--p-miss-no-return", type=float, default=d.p_miss_no_return, help=no_return)
+    reach = f"[m] how far a no-return beam clears ({d.no_return_range}; none: to range_max)"
+    group.add_argument(
+        "--no-return-range", type=_range_or_none, default=d.no_return_range, help=reach
+    )
     group.add_argument(
         "--policy",
         choices=[p.value for p in Policy],
@@ -64,6 +80,8 @@ def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, Polic
         clamp_max=args.clamp_max,
         occupied_threshold=args.occupied_threshold,
         free_threshold=args.free_threshold,
+        p_miss_no_return=args.p_miss_no_return,
+        no_return_range=args.no_return_range,
     )
     decay = DecayParams(
         half_life_occupied=args.half_life_occupied, half_life_free=args.half_life_free

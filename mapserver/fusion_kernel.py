@@ -7,8 +7,10 @@ The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et
 2. *Trace beams.* Every return and no-return beam is clipped to the map rectangle
    (Liang-Barsky) and traversed cell by cell with integer Bresenham stepping (as Nav2's
    ``raytraceLine``). A return's own endpoint cell is not traversed; a no-return beam's
-   last cell is. Each traversed cell not yet marked in this scan is marked FREE, so a
-   cell crossed by many beams is recorded once and a HIT is never downgraded.
+   last cell is. A cell a return crosses is marked FREE, a cell only no-return beams
+   cross NO_RETURN (weaker evidence, docs/no-return.md); a mark only ever strengthens
+   (NONE < NO_RETURN < FREE < HIT), so a cell crossed by many beams is recorded once
+   and a HIT is never downgraded.
 3. *Apply.* Each marked cell receives exactly one update (see ``apply_marks``) and its
    mark is reset, so the mark array is all zero between scans without a full clear.
 
@@ -24,9 +26,11 @@ import math
 import numpy as np
 from numba import njit
 
+# Marks, weakest first: a cell takes the strongest evidence any beam of the scan gives it.
 MARK_NONE = 0
-MARK_FREE = 1
-MARK_HIT = 2
+MARK_NO_RETURN = 1  # crossed only by no-return beams (weak free evidence)
+MARK_FREE = 2  # crossed by a beam that returned
+MARK_HIT = 3
 
 POLICY_DECAY = 0
 POLICY_BINARY = 1
@@ -79,8 +83,9 @@ def cell_of(v, origin, inv_res, n):
 
 
 @njit(cache=True, nogil=True)
-def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last):
-    """Bresenham from cell (c0, r0) to (c1, r1); mark unmarked cells FREE; returns new n."""
+def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark):
+    """Bresenham from cell (c0, r0) to (c1, r1); raise weaker marks to ``mark``; returns
+    the new n (a cell enters ``touched`` once, when first marked)."""
     dc = c1 - c0
     dr = r1 - r0
     adc = abs(dc)
@@ -95,10 +100,11 @@ def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last):
     idx = r0 * width + c0
     err = a >> 1
     for _ in range(count):
-        if marks[idx] == MARK_NONE:
-            marks[idx] = MARK_FREE
-            touched[n] = idx
-            n += 1
+        if marks[idx] < mark:
+            if marks[idx] == MARK_NONE:
+                touched[n] = idx
+                n += 1
+            marks[idx] = mark
         err -= b
         if err < 0:
             idx += minor
@@ -130,9 +136,9 @@ def mark_scan(
     """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
 
     ranges: [m] per beam, REP 117 semantics; clearing_range: [m] how far a no-return
-    beam clears. touched[:n] receives the flat indices of the marked cells; box (int64[4])
-    receives their bounding box (col_min, row_min, col_max, row_max), inclusive, or
-    (0, 0, -1, -1) when no cell is touched.
+    beam clears (<= 0: no-return beams mark nothing). touched[:n] receives the flat
+    indices of the marked cells; box (int64[4]) receives their bounding box (col_min,
+    row_min, col_max, row_max), inclusive, or (0, 0, -1, -1) when no cell is touched.
     """
     cmin = width
     rmin = height
@@ -173,6 +179,8 @@ def mark_scan(
             length = r
             is_return = True
         elif r > range_max:
+            if not clearing_range > 0.0:
+                continue  # no-return beams carry no evidence
             length = clearing_range
             is_return = False
         else:
@@ -193,7 +201,8 @@ def mark_scan(
         r1 = cell_of(sensor_y + t1 * dy, origin_y, inv_res, height)
         # A return whose endpoint is on the map stops before its own (HIT) cell.
         endpoint_on_map = is_return and t1 >= 1.0
-        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map)
+        mark = MARK_FREE if is_return else MARK_NO_RETURN
+        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map, mark)
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
@@ -230,6 +239,7 @@ def apply_marks(
     pose_var_yaw,
     l_hit,
     l_miss,
+    l_miss_no_return,
     l0,
     clamp_min,
     clamp_max,
@@ -240,11 +250,13 @@ def apply_marks(
 ):
     """Step 3: one update per marked cell in touched[:n]; resets their marks.
 
-    Update of cell c with evidence l (l_hit for HIT, l_miss for FREE):
+    Update of cell c with evidence l (l_hit for HIT, l_miss for FREE, l_miss_no_return
+    for NO_RETURN):
     - decay: fade L toward l0 over max(0, stamp - last_observed) [s] with the half life
       of its sign, then ``L <- clamp(L + w * (l - l0))``;
     - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
-    - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE (last ray wins).
+    - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE or NO_RETURN (last ray
+      wins).
     The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
@@ -263,7 +275,12 @@ def apply_marks(
         if policy == POLICY_BINARY:
             log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
         else:
-            ev = (l_hit if mark == MARK_HIT else l_miss) - l0
+            if mark == MARK_HIT:
+                ev = l_hit - l0
+            elif mark == MARK_FREE:
+                ev = l_miss - l0
+            else:
+                ev = l_miss_no_return - l0
             if weighted:
                 row = idx // width
                 dxc = origin_x + (idx - row * width + 0.5) * resolution - sensor_x
@@ -354,6 +371,7 @@ def fuse_batch(
     scan_params,
     l_hit,
     l_miss,
+    l_miss_no_return,
     l0,
     clamp_min,
     clamp_max,
@@ -367,7 +385,8 @@ def fuse_batch(
 
     ranges: all scans' ranges [m] concatenated; scan k's are ranges[offsets[k]:offsets[k+1]].
     scan_params: float64 (n, 11) per scan: sensor x, y [m], yaw [rad], angle_min,
-    angle_increment [rad], range_min, range_max, clearing_range [m], stamp [s], pose
+    angle_increment [rad], range_min, range_max, clearing_range [m] (of no-return beams,
+    <= 0: none), stamp [s], pose
     variances xy [m^2] and yaw [rad^2]. boxes (n, 4) and cells (n,) receive each scan's
     bounding box and number of cells updated.
     """
@@ -380,7 +399,7 @@ def fuse_batch(
         )  # fmt: skip
         apply_marks(
             log_odds, last_observed, marks, touched, n, width, origin_x, origin_y, resolution,
-            p[0], p[1], p[8], p[9], p[10], l_hit, l_miss, l0, clamp_min, clamp_max, policy,
-            half_life_occupied, half_life_free, fade_cache,
+            p[0], p[1], p[8], p[9], p[10], l_hit, l_miss, l_miss_no_return, l0, clamp_min,
+            clamp_max, policy, half_life_occupied, half_life_free, fade_cache,
         )  # fmt: skip
         cells[k] = n

@@ -8,7 +8,6 @@ quarantine them, but the journal is not changed."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +20,7 @@ from mapserver.journal import JOURNAL_FILENAME, JournalError, open_journal_for_r
 from mapserver.journal_reading import ReadRecord, read_records
 from mapserver.scan import Scan
 from mapserver.sensor_model import DecayParams, Policy, SensorModel
-from mapserver.service import MAP_SETTINGS_FILE
+from mapserver.service import MAP_SETTINGS_FILE, read_map_settings
 
 
 class ReplayError(ValueError):
@@ -51,11 +50,12 @@ def replay_journal(
 
 
 def read_settings(data_dir: Path) -> dict[str, Any]:
-    """The map settings a server recorded in ``data_dir`` (``MAP_SETTINGS_FILE``, as
-    ``mapserver.service`` writes them); ReplayError when missing or not JSON."""
+    """The map settings a server recorded in ``data_dir`` (``MAP_SETTINGS_FILE``, read
+    as ``mapserver.service.read_map_settings`` does: an old dir's missing no-return
+    fields filled with the rule it was fused under); ReplayError when missing or not JSON."""
     path = Path(data_dir) / MAP_SETTINGS_FILE
     try:
-        return json.loads(path.read_text())
+        return read_map_settings(Path(data_dir))
     except (OSError, ValueError) as exc:
         raise ReplayError(f"{path}: not a map server's settings ({exc})") from None
 

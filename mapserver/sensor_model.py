@@ -16,6 +16,15 @@ Defaults (CONTRACT section 1), in both units:
 - ``clamp_max = +5.0``  # = p 0.9933: 13 passes to flip a saturated occupied cell
 - ``occupied_threshold = 0.65``  # = +0.619 log-odds
 - ``free_threshold = 0.25``      # = -1.099 log-odds
+- ``p_miss_no_return = 0.45``  # = -0.201 log-odds per no-return pass, half of p_miss's
+- ``no_return_range = 1.0``    # [m] how far a no-return beam clears: the unit's own
+  surroundings, not through the rack across a 2 m aisle (docs/no-return.md measures it)
+
+A no-return beam (REP 117: a range > range_max or +inf) reads nothing: the sensor saw no
+surface, or it dropped the beam (dust, a black or shiny surface, a glancing angle). It is
+weak evidence of free space, so it has a miss probability of its own, closer to the
+prior, and clears only out to ``no_return_range`` (OctoMap's ``maxrange`` for insertion,
+Nav2's ``inf_is_valid`` + ``raytrace_max_range``); docs/no-return.md has the arithmetic.
 """
 
 from __future__ import annotations
@@ -41,7 +50,8 @@ class Policy(StrEnum):
     - ``decay``: clamped log-odds whose evidence fades toward the prior with time since
       the cell was last observed (the project's default).
     - ``binary``: the Nav2 obstacle-layer baseline: last ray wins; a return marks the cell
-      occupied (``clamp_max``), a pass clears it (``clamp_min``); no decay.
+      occupied (``clamp_max``), a pass clears it (``clamp_min``); no decay; a no-return
+      beam is a pass out to ``range_max`` (Nav2 with ``inf_is_valid: true``).
     - ``sticky``: log-odds with no clamp and no decay.
     """
 
@@ -80,6 +90,10 @@ class SensorModel:
     occupied_threshold: a cell with p > this is occupied (> prior).
     free_threshold: a cell with p < this is free (< prior); between the two it is unknown,
         so evidence fading toward the prior can only turn a known cell unknown.
+    p_miss_no_return: probability that a cell only no-return beams pass through is
+        occupied, in [p_miss, prior]; prior: no-return beams change nothing.
+    no_return_range: [m] how far a no-return beam clears (capped by the scan's
+        range_max); None: out to range_max.
     """
 
     p_hit: float = 0.7
@@ -89,10 +103,13 @@ class SensorModel:
     clamp_max: float = 5.0
     occupied_threshold: float = 0.65
     free_threshold: float = 0.25
+    p_miss_no_return: float = 0.45
+    no_return_range: float | None = 1.0
 
     def __post_init__(self) -> None:
         for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
             _probability(name, getattr(self, name))
+        _probability("p_miss_no_return", self.p_miss_no_return)
         if not self.p_hit > self.prior:
             raise ValueError(
                 f"p_hit must be greater than the prior ({self.prior}), got {self.p_hit!r}"
@@ -100,6 +117,17 @@ class SensorModel:
         if not self.p_miss < self.prior:
             raise ValueError(
                 f"p_miss must be less than the prior ({self.prior}), got {self.p_miss!r}"
+            )
+        if not self.p_miss <= self.p_miss_no_return <= self.prior:
+            raise ValueError(
+                f"p_miss_no_return must be between p_miss ({self.p_miss}) and the prior "
+                f"({self.prior}): a beam that reads nothing is no stronger evidence than one "
+                f"that returned, got {self.p_miss_no_return!r}"
+            )
+        value = self.no_return_range
+        if value is not None and not (isinstance(value, int | float) and value > 0):
+            raise ValueError(
+                f"no_return_range must be a positive range in metres or None, got {value!r}"
             )
         for name in ("clamp_min", "clamp_max"):
             value = getattr(self, name)
@@ -135,6 +163,16 @@ class SensorModel:
     def l_miss(self) -> float:
         """[log-odds] evidence of one pass-through (negative)."""
         return logit(self.p_miss)
+
+    @property
+    def l_miss_no_return(self) -> float:
+        """[log-odds] evidence of one no-return pass (between l_miss and l0)."""
+        return logit(self.p_miss_no_return)
+
+    @property
+    def no_return_cap(self) -> float:
+        """[m] how far a no-return beam clears at most (inf: the scan's range_max)."""
+        return math.inf if self.no_return_range is None else float(self.no_return_range)
 
     @property
     def l0(self) -> float:

@@ -466,7 +466,7 @@ def _check_map_settings(data_dir: Path, current: dict[str, Any]) -> None:
         tmp.write_text(json.dumps(current, indent=2))
         tmp.replace(path)
         return
-    recorded = json.loads(path.read_text())
+    recorded = read_map_settings(data_dir)
     if recorded != current:
         diff = sorted(k for k in current if recorded.get(k) != current[k])
         raise DataDirError(
@@ -476,8 +476,19 @@ def _check_map_settings(data_dir: Path, current: dict[str, Any]) -> None:
 
 
 def read_map_settings(data_dir: Path) -> dict[str, Any]:
-    """The map settings recorded in a data dir (for ``fleetmap replay``)."""
-    return json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
+    """The map settings recorded in a data dir (for ``fleetmap replay``).
+
+    A data dir written before no-return beams had their own evidence (docs/no-return.md)
+    records no ``p_miss_no_return`` or ``no_return_range``: its journal was fused with
+    no-return beams as strong as returns (``p_miss``) out to range_max (None), so those are
+    the values filled in. Such a dir opens under those settings, not the new defaults.
+    """
+    recorded = json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
+    model = recorded.get("sensor_model")
+    if isinstance(model, dict) and "p_miss" in model:
+        model.setdefault("p_miss_no_return", model["p_miss"])
+        model.setdefault("no_return_range", None)
+    return recorded
 
 
 def _lock_data_dir(data_dir: Path) -> FileLocks:

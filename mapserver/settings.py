@@ -156,6 +156,8 @@ class SensorModelSettings(_DomainSection):
     clamp_max: float = _SENSOR.clamp_max
     occupied_threshold: float = _SENSOR.occupied_threshold
     free_threshold: float = _SENSOR.free_threshold
+    p_miss_no_return: float = _SENSOR.p_miss_no_return
+    no_return_range: float | None = _SENSOR.no_return_range
 
     def build(self) -> SensorModel:
         return SensorModel(**self.model_dump())
@@ -358,7 +360,7 @@ class Settings(BaseSettings):
     sensor_model, policy, decay: how scans become beliefs (``BeliefGrid``).
     inflation: how lethal cells inflate into the costmap.
     max_clearing_range: [m] cap on how far a no-return beam clears (None: the scan's
-        own range_max).
+        own range_max), on top of ``sensor_model.no_return_range`` (the smaller wins).
     tokens: bearer tokens (``TokenSettings``); none means an open server on loopback only,
         which accepts only requests whose Host is loopback and whose Origin, if any, is.
     limits, clock, reads, server, journal: see their sections.

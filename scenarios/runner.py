@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import httpx
@@ -18,7 +18,7 @@ from mapserver.client import MapClient
 from mapserver.geometry import GridGeometry
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.episode import Episode, RunOptions
-from scenarios.observers import ProgressReport
+from scenarios.observers import Observer, ProgressReport
 from scenarios.record import RunRecord
 from scenarios.replay_fused import read_fused
 from scenarios.spec import Scenario
@@ -36,11 +36,13 @@ def run(
     token: str | None = None,
     announce: Callable[[str], None] | None = None,
     data_dir: Path | None = None,
+    observers: Sequence[Observer] = (),
 ) -> RunRecord:
     """Run scenario ``setup`` against ``server_url`` (None: an embedded server of its own,
     on ``data_dir``, a temporary one when None; ``token``: the bearer token for a server
-    that needs one); ``progress(now, duration)`` [s] after every step. With an embedded
-    server the record holds what it fused (``RunRecord.fused``, read once it stopped)."""
+    that needs one); ``progress(now, duration)`` [s] after every step; ``observers``:
+    more observers of the episode (a benchmark's). With an embedded server the record
+    holds what it fused (``RunRecord.fused``, read once it stopped)."""
     tmp = tempfile.TemporaryDirectory(prefix="fleetmap-run-")  # kept by record.fused
     server = None
     try:
@@ -53,7 +55,7 @@ def run(
         try:
             with httpx.Client(base_url=server_url, timeout=60) as http:
                 client = MapClient(http, token=token, timeout=60)
-                extra = [ProgressReport(progress)] if progress is not None else []
+                extra = [*observers, *([ProgressReport(progress)] if progress else [])]
                 with Episode(setup, client, options, extra) as episode:
                     episode.reset()
                     while not episode.done:

@@ -55,6 +55,20 @@ def test_a_scan_is_acknowledged_and_fused(open_client):
     assert cell["state"] == "occupied" and cell["cost"] == LETHAL and cell["age"] == 0.0
 
 
+def test_a_no_return_reading_is_weak_free_evidence_out_to_the_no_return_range(open_client):
+    for unit in ("u1", "u2", "u3", "u4", "u5", "u6"):  # one stamp: nothing fades
+        body = scan_body(unit=unit, angle_min=0.0, angle_increment=0.001, ranges=[21.0, 21.0])
+        assert open_client.post("/v1/scans", json=body).status_code == 200  # 21 > range_max
+    meta = open_client.get("/v1/map/meta").json()["sensor_model"]
+    assert (meta["p_miss_no_return"], meta["no_return_range"]) == (0.45, 1.0)
+    points = [[5.55, 5.05], [5.95, 5.05], [6.25, 5.05]]  # 0.55, 0.95 and 1.25 m along +x
+    near, edge, far = open_client.post("/v1/query/cells", json={"points": points}).json()["cells"]
+    six = 1 / (1 + (0.55 / 0.45) ** 6)  # six no-return passes: p 0.2310, free (< 0.25)
+    for cell in (near, edge):  # both within the 1 m reach
+        assert cell["state"] == "free" and cell["p_occ"] == pytest.approx(six, abs=1e-6)
+    assert far["state"] == "unknown" and far["last_observed"] is None  # beyond 1 m
+
+
 def test_a_batch_is_acknowledged_scan_by_scan(open_client):
     scans = [scan_body(stamp=1.0), scan_body(stamp=1.0, unit="u2"), scan_body(stamp=2.0)]
     reply = open_client.post("/v1/scans/batch", json={"scans": scans})

@@ -78,6 +78,34 @@ def test_bad_sensor_model_flags_are_refused_before_any_work(scan_file, tmp_path,
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--p-miss-no-return", "0.6"], "p_miss_no_return must be between p_miss"),
+        (["--no-return-range", "-1"], "no_return_range must be a positive range"),
+    ],
+)
+def test_bad_no_return_flags_name_their_field(scan_file, tmp_path, capsys, flags, message):
+    out = tmp_path / "map"
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), *flags]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_no_return_flags_set_the_no_return_evidence(tmp_path):
+    path = tmp_path / "scans.jsonl"
+    write_scan_file(path, [make_scan([math.inf], y=1.5, range_max=10.0)])  # from x = 0.5
+    out = tmp_path / "map"
+    flags = ["--p-miss-no-return", "0.42", "--no-return-range", "4"]
+    assert main(["map", "build", str(path), *ARGS, "--out", str(out), *flags]) == 0
+    row = np.load(out / "logodds.npy")[1]
+    assert row[:5] == pytest.approx([math.log(0.42 / 0.58)] * 5)  # cells 0..4, to x = 4.5
+    assert np.all(row[5:] == 0.0)
+    uncapped = ["--no-return-range", "none"]
+    assert main(["map", "build", str(path), *ARGS, "--out", str(out), *uncapped]) == 0
+    assert np.count_nonzero(np.load(out / "logodds.npy")[1]) == 11  # to range_max: x = 10.5
+
+
 def test_a_missing_scan_file_is_a_clear_error(tmp_path, capsys):
     assert main(["map", "build", str(tmp_path / "nope.jsonl"), *ARGS]) == 2
     assert "cannot read" in capsys.readouterr().err

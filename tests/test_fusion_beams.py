@@ -58,8 +58,12 @@ def test_a_hit_beats_a_pass_in_the_same_scan(order):
     assert lo[4:9] == pytest.approx([M.l_miss] * 5)
 
 
+# No-return beams as strong as returns, out to range_max (the rule before docs/no-return.md)
+AS_RETURNS = SensorModel(p_miss_no_return=M.p_miss, no_return_range=None)
+
+
 def test_no_return_beams_clear_to_the_clearing_range_and_mark_nothing():
-    b = row_grid(width=30)
+    b = BeliefGrid(GridGeometry(30, 1, 1.0), AS_RETURNS)
     b.fuse(make_scan([math.inf, 25.0], range_max=10.0, angle_increment=1e-6))
     lo = b.raw_log_odds()[0]
     assert lo[:11] == pytest.approx([M.l_miss] * 11)  # out to x = 10.5: cells 0..10
@@ -68,7 +72,7 @@ def test_no_return_beams_clear_to_the_clearing_range_and_mark_nothing():
 
 
 def test_the_clearing_range_can_be_capped():
-    b = BeliefGrid(GridGeometry(30, 1, 1.0), M, max_clearing_range=3.0)
+    b = BeliefGrid(GridGeometry(30, 1, 1.0), AS_RETURNS, max_clearing_range=3.0)
     b.fuse(make_scan([math.inf], range_max=10.0))
     assert np.count_nonzero(b.raw_log_odds()) == 4  # cells 0..3 (to x = 3.5)
 

@@ -90,7 +90,9 @@ def test_thirty_unclamped_hits_need_68_passes():
 def test_zero_evidence_never_moves_a_cell_and_the_prior_is_subtracted_once():
     prior = 0.3
     l0 = float(np.log(prior / (1 - prior)))
-    m = SensorModel(p_hit=sigmoid(l0 + 0.5), p_miss=sigmoid(l0 - 0.5), prior=prior)
+    m = SensorModel(
+        p_hit=sigmoid(l0 + 0.5), p_miss=sigmoid(l0 - 0.5), prior=prior, p_miss_no_return=prior
+    )
     b = BeliefGrid(GridGeometry(12, 1, 1.0), m, Policy.STICKY)
     start = b.raw_log_odds().copy()
     assert np.all(start == np.float32(l0))

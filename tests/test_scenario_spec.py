@@ -32,7 +32,7 @@ from scenarios.spec import (
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 SHIPPED = (
     "static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift",
-    "hundred_units", "tiny",
+    "hundred_units", "tiny", "dropouts",
 )  # fmt: skip
 
 BASE = """\
@@ -106,6 +106,24 @@ def test_moved_pod_moves_the_pod_blocking_the_dead_end_out_of_the_way():
     assert {sid for sid, x in on_the_line.items() if x > 24.6} == {"s-1"}  # behind the pod
     wall = scenario.layout.obstacle("wall-dead-end").shape.bounds()
     assert on_the_line["s-1"] < wall[0]  # and before the wall that closes the dead end
+
+
+def test_dropouts_is_a_static_warehouse_seen_by_noisy_lidars_that_drop_beams():
+    scenario = load_scenario(SCENARIOS / "dropouts.yaml")
+    assert scenario.events == ()
+    lidar = scenario.units.lidar
+    assert (lidar.range_noise, lidar.dropout_prob, lidar.spurious_prob) == (0.02, 0.05, 0.0)
+    model = scenario.map_server.sensor_model
+    assert (model.p_miss_no_return, model.no_return_range) == (0.45, 1.0)  # the defaults
+
+
+def test_the_no_return_settings_are_scenario_settings(tmp_path):
+    text = BASE.replace("{p_hit: 0.75}", "{p_miss_no_return: 0.5, no_return_range: null}")
+    model = load_text(text, tmp_path).map_server.sensor_model
+    assert (model.p_miss_no_return, model.no_return_range) == (0.5, None)
+    bad = BASE.replace("{p_hit: 0.75}", "{p_miss_no_return: 0.6}")
+    with pytest.raises(ScenarioError, match="map_server.sensor_model.p_miss_no_return: must be"):
+        load_text(bad, tmp_path)
 
 
 # ---------------------------------------------------------------------------- values

@@ -12,6 +12,10 @@ def test_defaults_are_the_contract_values_in_log_odds():
     assert m.l_hit == pytest.approx(0.8473, abs=1e-4)
     assert m.l_miss == pytest.approx(-0.4055, abs=1e-4)
     assert m.l0 == 0.0
+    assert (m.p_miss_no_return, m.no_return_range) == (0.45, 1.0)
+    assert m.l_miss_no_return == pytest.approx(math.log(0.45 / 0.55))  # -0.2007
+    assert m.no_return_cap == 1.0
+    assert SensorModel(no_return_range=None).no_return_cap == math.inf
 
 
 def test_logit_and_sigmoid_are_inverse():
@@ -32,6 +36,11 @@ def test_logit_and_sigmoid_are_inverse():
         ({"free_threshold": 0.7}, "free_threshold must be below the prior"),
         ({"occupied_threshold": 0.45}, "occupied_threshold must be above the prior"),
         ({"prior": 0.8}, "p_hit must be greater than the prior"),
+        ({"p_miss_no_return": 0.55}, "p_miss_no_return must be between p_miss"),
+        ({"p_miss_no_return": 0.3}, "p_miss_no_return must be between p_miss"),
+        ({"p_miss_no_return": 0.0}, "p_miss_no_return must be a probability"),
+        ({"no_return_range": 0.0}, "no_return_range must be a positive range"),
+        ({"no_return_range": math.nan}, "no_return_range must be a positive range"),
     ],
 )
 def test_invalid_sensor_model_is_rejected_with_the_field_and_value(kwargs, message):

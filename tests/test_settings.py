@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
@@ -289,3 +290,38 @@ def test_empty_config_file_means_defaults(tmp_path: Path) -> None:
     config = tmp_path / "empty.yaml"
     config.write_text("")
     assert load_settings(config, {}) == load_settings(None, {})
+
+
+# ---------------------------------------------------------------------- no-return beams
+def test_no_return_settings_default_to_the_sensor_model_and_can_be_set() -> None:
+    s = load_settings(None, {})
+    assert (s.sensor_model.p_miss_no_return, s.sensor_model.no_return_range) == (0.45, 1.0)
+    s = load_settings(None, {"sensor_model": {"p_miss_no_return": 0.5, "no_return_range": None}})
+    assert s.build_sensor_model() == SensorModel(p_miss_no_return=0.5, no_return_range=None)
+
+
+def test_bad_no_return_settings_name_the_field() -> None:
+    (line,) = problems(sensor_model={"p_miss_no_return": 0.3})
+    assert line.startswith("sensor_model.p_miss_no_return: must be between p_miss (0.4)")
+    (line,) = problems(sensor_model={"no_return_range": -2.0})
+    assert line.startswith("sensor_model.no_return_range: must be a positive range")
+
+
+def test_a_data_dir_from_before_no_return_evidence_opens_only_under_its_own_rule(tmp_path) -> None:
+    """Its map-settings.json lacks the new fields: it was fused with no-return beams at
+    p_miss out to range_max, which is what it is read as."""
+    from mapserver.service import (
+        MAP_SETTINGS_FILE,
+        DataDirError,
+        _check_map_settings,
+        _map_settings,
+    )
+
+    old = _map_settings(load_settings(None, {}))
+    for name in ("p_miss_no_return", "no_return_range"):
+        del old["sensor_model"][name]
+    (tmp_path / MAP_SETTINGS_FILE).write_text(json.dumps(old))
+    with pytest.raises(DataDirError, match="sensor_model differ"):
+        _check_map_settings(tmp_path, _map_settings(load_settings(None, {})))
+    legacy = {"sensor_model": {"p_miss_no_return": 0.4, "no_return_range": None}}
+    _check_map_settings(tmp_path, _map_settings(load_settings(None, legacy)))  # accepted
