@@ -189,6 +189,8 @@ class DriveUnit:
         target_speed, turn, final, aligned = 0.0, 0.0, False, False
         if self._path:
             stop_at, to_stop, corner_at, to_corner, pass_speed = self._ahead_on_path(x, y)
+            sx, sy = self._path[stop_at]  # the last stretch is driven straight at the stop:
+            to_stop = min(to_stop, math.hypot(sx - x, sy - y))  # brake for the shorter way
             lookahead = lim.lookahead(self.speed)
             final = stop_at == 0 and to_stop <= lookahead
             if final:  # straight at the stop

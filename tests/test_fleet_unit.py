@@ -3,7 +3,7 @@
 import math
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fleet.unit import (
@@ -97,6 +97,9 @@ def test_errors_name_the_field_and_the_value(build, message):
 
 
 @settings(max_examples=60)
+@example(  # braked for the path's way round a waypoint, not the straight last stretch
+    dt=0.02, speed=1.0, accel=1.0, turn=1.0, yaw=0.0, path=[(-0.25, 1.75), (-0.25, 2.0)]
+)
 @given(
     dt=st.sampled_from([0.02, 0.05, 0.1]),
     speed=st.floats(0.3, 2.5),
