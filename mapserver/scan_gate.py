@@ -94,15 +94,18 @@ class GroupCheck:
         """Check a submission (all or none). Accepted: the entry answering each scan (a
         retry answers with its original's). Refused: why, and nothing changed."""
         clock = self._gate.clock
-        clock_state, latest_before, new_before = clock.state(), dict(self._latest), len(self.new)
+        # A refusal of the first scan has changed nothing yet: only a submission of several
+        # scans needs a copy to go back to (most are one scan: no O(units) copy per scan).
+        saved = (clock.state(), dict(self._latest), len(self.new)) if len(scans) > 1 else None
         entries: list[UnitLatest] = []
         for i, scan in enumerate(scans):
             where = f"scans[{i}]." if len(scans) > 1 else ""
             outcome = self._check(scan, where, self._latest.get(scan.unit_id))
             if isinstance(outcome, IngestError):
-                clock.restore(clock_state)
-                self._latest = latest_before
-                del self.new[new_before:]
+                if saved is not None:
+                    clock_state, self._latest, new_before = saved
+                    clock.restore(clock_state)
+                    del self.new[new_before:]
                 return outcome
             if outcome is None:  # a new scan
                 outcome = UnitLatest(scan.stamp, scan.digest(), slot=len(self.new))

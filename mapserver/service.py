@@ -46,11 +46,9 @@ from mapserver.journal_reading import read_records
 from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.occupancy import occupancy_percent
 from mapserver.queries import (
-    CellReport,
     CellSamples,
     SegmentReport,
     cell_columns,
-    cell_reports,
     query_segments,
     sample_cells,
 )
@@ -369,13 +367,9 @@ class MapService:
         with self._lock:
             return self.version, self.costmap.stamp, self.costmap.patches_since(version)
 
-    def cells(self, points: Any, at: float | None = None) -> list[CellReport]:
-        """CONTRACT 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
-        ``at`` [s] (default: the map's stamp)."""
-        return cell_reports(*self._cell_samples(points, at))
-
     def cell_columns(self, points: Any, at: float | None = None) -> dict[str, list]:
-        """The same reports as columns (``queries.cell_columns``), for large queries."""
+        """CONTRACT 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
+        ``at`` [s] (default: the map's stamp), as columns (``queries.cell_columns``)."""
         return cell_columns(*self._cell_samples(points, at))
 
     def _cell_samples(self, points: Any, at: float | None) -> tuple[CellSamples, float]:

@@ -51,3 +51,13 @@ def test_a_retry_after_a_restart_is_answered_from_the_journal():
     assert check.answers(entries, []) == [Ack(12, 12)] and check.new == []
     other = check.admit([scan(4.0, y=6.0)])
     assert isinstance(other, IngestError) and "already sent another scan" in other.detail
+
+
+def test_a_refused_single_scan_changes_nothing():
+    g = gate()
+    check = g.open_group()
+    check.admit([scan(1.0)])
+    refused = check.admit([scan(1e12, "u9")])  # leads the wall clock (1e9 s here)
+    assert isinstance(refused, IngestError) and refused.status == 422
+    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.fleet_median() == 1.0
+    assert isinstance(check.admit([scan(2.0, "u9")]), list)  # u9 has no stamp recorded
