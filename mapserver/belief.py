@@ -155,7 +155,8 @@ class BeliefGrid:
         if not scans:
             return []
         m, d = self.sensor_model, self.decay
-        params = np.empty((len(scans), 11), dtype=np.float64)
+        params = np.empty((len(scans), 12), dtype=np.float64)
+        fill_margin = self.fill_margin
         for k, scan in enumerate(scans):
             std = scan.pose_std
             params[k] = (
@@ -170,6 +171,7 @@ class BeliefGrid:
                 scan.stamp,
                 std.xy**2 if std is not None else 0.0,
                 std.yaw**2 if std is not None else 0.0,
+                fill_margin,
             )
         offsets = np.zeros(len(scans) + 1, dtype=np.int64)
         np.cumsum([s.beam_count for s in scans], out=offsets[1:])
@@ -209,6 +211,16 @@ class BeliefGrid:
             FusionResult(cells=int(c), box=CellBox(*(int(v) for v in box)))
             for c, box in zip(cells.tolist(), boxes.tolist(), strict=True)
         ]
+
+    @property
+    def fill_margin(self) -> float:
+        """[m] how far the fill between beams keeps from the surface two neighbouring
+        returns outline: one cell, for the log-odds policies with the sensor model's
+        ``fill_between_beams``; 0 (no fill) otherwise, and always for ``binary``, the Nav2
+        baseline, which traces its beams only (docs/clearing.md)."""
+        if self.policy is Policy.BINARY or not self.sensor_model.fill_between_beams:
+            return 0.0
+        return self.geometry.resolution
 
     def no_return_clearing(self, range_max: float) -> float:
         """[m] how far a no-return beam of a scan with ``range_max`` [m] clears: out to

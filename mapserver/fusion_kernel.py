@@ -11,6 +11,9 @@ The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et
    cross NO_RETURN (weaker evidence, docs/no-return.md); a mark only ever strengthens
    (NONE < NO_RETURN < FREE < HIT), so a cell crossed by many beams is recorded once
    and a HIT is never downgraded.
+   Where beams are more than a cell apart, the wedge between two neighbouring returns is
+   filled with rays of its own up to a margin short of the surface the two outline
+   (``fill_between``; the sensor model's ``fill_between_beams``), marked FREE.
 3. *Apply.* Each marked cell receives exactly one update (see ``apply_marks``) and its
    mark is reset, so the mark array is all zero between scans without a full clear.
 
@@ -131,12 +134,15 @@ def mark_scan(
     range_min,
     range_max,
     clearing_range,
+    fill_margin,
     box,
 ):
     """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
 
     ranges: [m] per beam, REP 117 semantics; clearing_range: [m] how far a no-return
-    beam clears (<= 0: no-return beams mark nothing). touched[:n] receives the flat
+    beam clears (<= 0: no-return beams mark nothing); fill_margin: [m] how far the
+    fill between beams keeps from the surface two neighbouring returns outline (<= 0:
+    no fill; see ``fill_between``). touched[:n] receives the flat
     indices of the marked cells; box (int64[4]) receives their bounding box (col_min,
     row_min, col_max, row_max), inclusive, or (0, 0, -1, -1) when no cell is touched.
     """
@@ -206,6 +212,15 @@ def mark_scan(
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
+    # Step 2b: the free wedge between neighbouring returns, where beams are sparse.
+    if fill_margin > 0.0:
+        for i in range(nbeams - 1):
+            n, cmin, rmin, cmax, rmax = fill_between(
+                marks, touched, n, width, height, origin_x, origin_y, resolution,
+                sensor_x, sensor_y, sensor_yaw + angle_min + i * angle_increment,
+                angle_increment, ranges[i], ranges[i + 1], range_min, range_max,
+                fill_margin, cmin, rmin, cmax, rmax,
+            )  # fmt: skip
     if n == 0:
         cmin, rmin, cmax, rmax = 0, 0, -1, -1
     box[0] = cmin
@@ -213,6 +228,100 @@ def mark_scan(
     box[2] = cmax
     box[3] = rmax
     return n
+
+
+MAX_FILL_RAYS = 64
+"""Fill rays between two neighbouring beams at most (a 1 degree gap at 20 m is 4 cells
+of 0.1 m, 7 of 0.05 m)."""
+
+MIN_FILL_INCIDENCE = math.radians(15.0)
+"""[rad] the least angle between the beams and the surface two returns outline for the
+wedge between them to be filled: a steeper change of range between neighbours is an
+occlusion edge (a rack's corner ahead of the wall behind it, which may reach into the
+wedge) or a glancing face, and is left to the beams."""
+
+_MAX_RANGE_STEP = 1.0 / math.tan(MIN_FILL_INCIDENCE)  # |r_a - r_b| per (range * angle)
+
+
+@njit(cache=True, nogil=True)
+def fill_between(
+    marks, touched, n, width, height, origin_x, origin_y, resolution, sensor_x, sensor_y,
+    angle_a, angle_increment, range_a, range_b, range_min, range_max, fill_margin,
+    cmin, rmin, cmax, rmax,
+):  # fmt: skip
+    """Mark FREE the cells between beam a (at ``angle_a`` [rad]) and its neighbour b
+    that neither beam crosses; returns (n, cmin, rmin, cmax, rmax) updated.
+
+    Two neighbouring returns outline the surface between them: the segment joining
+    their endpoints. The wedge in front of it, between the two beams, is free space the
+    scan saw through (the local safe region of a range scan: Gonzalez-Banos and Latombe,
+    *Navigation strategies for exploring indoor environments*, IJRR 2002); farther than
+    ``resolution / |angle_increment|`` from the sensor the beams are more than a cell
+    apart and leave cells in it unseen, the farther the more (aliasing: a cell there is
+    crossed by one scan and missed by the next). Fill rays, evenly spaced between the
+    two beams so that they are at most a cell apart at the nearer return, are traced from
+    that distance out to ``fill_margin`` [m] short of the segment, measured square to it
+    (so a glancing surface is approached no closer than a square one). Nothing is filled
+    unless both beams returned (a no-return beam outlines nothing) and the outlined
+    surface meets the beams at ``MIN_FILL_INCIDENCE`` or more (range changing by at most
+    ``near * step / tan(MIN_FILL_INCIDENCE)``): past an occlusion edge the wedge may
+    hold the corner that made it.
+    """
+    if not (range_a >= range_min and range_a <= range_max):
+        return n, cmin, rmin, cmax, rmax
+    if not (range_b >= range_min and range_b <= range_max):
+        return n, cmin, rmin, cmax, rmax
+    step = abs(angle_increment)
+    start = resolution / step  # [m] where neighbouring beams are a cell apart
+    near = min(range_a, range_b)
+    if not near > start:
+        return n, cmin, rmin, cmax, rmax
+    if abs(range_a - range_b) > near * step * _MAX_RANGE_STEP:
+        return n, cmin, rmin, cmax, rmax  # an occlusion edge or a glancing face
+    rays = min(MAX_FILL_RAYS, int(math.ceil(near * step / resolution)) - 1)
+    angle_b = angle_a + angle_increment
+    # Endpoint a and the segment a -> b, relative to the sensor [m].
+    ax = range_a * math.cos(angle_a)
+    ay = range_a * math.sin(angle_a)
+    ex = range_b * math.cos(angle_b) - ax
+    ey = range_b * math.sin(angle_b) - ay
+    edge = math.sqrt(ex * ex + ey * ey)
+    if not (edge > 0.0 and math.isfinite(edge)):
+        return n, cmin, rmin, cmax, rmax
+    inv_res = 1.0 / resolution
+    xmin = origin_x
+    ymin = origin_y
+    xmax = origin_x + width * resolution
+    ymax = origin_y + height * resolution
+    for j in range(1, rays + 1):
+        a = angle_a + angle_increment * j / (rays + 1)
+        ux = math.cos(a)
+        uy = math.sin(a)
+        cross = ux * ey - uy * ex
+        if cross == 0.0:
+            continue
+        # The ray meets the segment's line at t_edge; square to it, margin / sin(alpha).
+        t_edge = (ax * ey - ay * ex) / cross
+        t_end = t_edge - fill_margin * edge / abs(cross)
+        if not t_end > start:
+            continue
+        x0 = sensor_x + start * ux
+        y0 = sensor_y + start * uy
+        x1 = sensor_x + t_end * ux
+        y1 = sensor_y + t_end * uy
+        ok, t0, t1 = clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax)
+        if not ok:
+            continue
+        dx = x1 - x0
+        dy = y1 - y0
+        c0 = cell_of(x0 + t0 * dx, origin_x, inv_res, width)
+        r0 = cell_of(y0 + t0 * dy, origin_y, inv_res, height)
+        c1 = cell_of(x0 + t1 * dx, origin_x, inv_res, width)
+        r1 = cell_of(y0 + t1 * dy, origin_y, inv_res, height)
+        n = _trace(marks, touched, n, width, c0, r0, c1, r1, True, MARK_FREE)
+        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
+        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
+    return n, cmin, rmin, cmax, rmax
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -384,10 +493,10 @@ def fuse_batch(
     """Fuse scans one after the other in one call (the GIL is released once for all).
 
     ranges: all scans' ranges [m] concatenated; scan k's are ranges[offsets[k]:offsets[k+1]].
-    scan_params: float64 (n, 11) per scan: sensor x, y [m], yaw [rad], angle_min,
+    scan_params: float64 (n, 12) per scan: sensor x, y [m], yaw [rad], angle_min,
     angle_increment [rad], range_min, range_max, clearing_range [m] (of no-return beams,
-    <= 0: none), stamp [s], pose
-    variances xy [m^2] and yaw [rad^2]. boxes (n, 4) and cells (n,) receive each scan's
+    <= 0: none), stamp [s], pose variances xy [m^2] and yaw [rad^2], fill_margin [m]
+    (of the fill between beams, <= 0: none). boxes (n, 4) and cells (n,) receive each scan's
     bounding box and number of cells updated.
     """
     for k in range(offsets.shape[0] - 1):
@@ -395,7 +504,7 @@ def fuse_batch(
         n = mark_scan(
             marks, touched, width, height, origin_x, origin_y, resolution,
             p[0], p[1], p[2], p[3], p[4], ranges[offsets[k]:offsets[k + 1]],
-            p[5], p[6], p[7], boxes[k],
+            p[5], p[6], p[7], p[11], boxes[k],
         )  # fmt: skip
         apply_marks(
             log_odds, last_observed, marks, touched, n, width, origin_x, origin_y, resolution,

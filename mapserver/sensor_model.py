@@ -19,6 +19,9 @@ Defaults (CONTRACT section 1), in both units:
 - ``p_miss_no_return = 0.45``  # = -0.201 log-odds per no-return pass, half of p_miss's
 - ``no_return_range = 1.0``    # [m] how far a no-return beam clears: the unit's own
   surroundings, not through the rack across a 2 m aisle (docs/no-return.md measures it)
+- ``fill_between_beams = True``  # clear the cells between two neighbouring returns that
+  neither beam crosses (1 degree beams are a 0.1 m cell apart at 5.7 m), so a moved
+  obstacle's old place clears in under 2 s from a passing unit (docs/clearing.md)
 
 A no-return beam (REP 117: a range > range_max or +inf) reads nothing: the sensor saw no
 surface, or it dropped the beam (dust, a black or shiny surface, a glancing angle). It is
@@ -94,6 +97,9 @@ class SensorModel:
         occupied, in [p_miss, prior]; prior: no-return beams change nothing.
     no_return_range: [m] how far a no-return beam clears (capped by the scan's
         range_max); None: out to range_max.
+    fill_between_beams: where neighbouring beams are more than a cell apart, also clear
+        the cells between two neighbouring returns, up to one cell short of the surface
+        the two outline (log-odds policies only; docs/clearing.md).
     """
 
     p_hit: float = 0.7
@@ -105,8 +111,13 @@ class SensorModel:
     free_threshold: float = 0.25
     p_miss_no_return: float = 0.45
     no_return_range: float | None = 1.0
+    fill_between_beams: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.fill_between_beams, bool):
+            raise ValueError(
+                f"fill_between_beams must be true or false, got {self.fill_between_beams!r}"
+            )
         for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
             _probability(name, getattr(self, name))
         _probability("p_miss_no_return", self.p_miss_no_return)

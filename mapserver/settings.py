@@ -158,6 +158,7 @@ class SensorModelSettings(_DomainSection):
     free_threshold: float = _SENSOR.free_threshold
     p_miss_no_return: float = _SENSOR.p_miss_no_return
     no_return_range: float | None = _SENSOR.no_return_range
+    fill_between_beams: bool = _SENSOR.fill_between_beams
 
     def build(self) -> SensorModel:
         return SensorModel(**self.model_dump())
