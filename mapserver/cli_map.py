@@ -52,6 +52,13 @@ def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
         "--no-return-range", type=_range_or_none, default=d.no_return_range, help=reach
     )
     group.add_argument(
+        "--fill-between-beams",
+        action=argparse.BooleanOptionalAction,
+        default=d.fill_between_beams,
+        help="clear the cells between two neighbouring returns that neither beam crosses "
+        "(log-odds policies; docs/clearing.md)",
+    )
+    group.add_argument(
         "--policy",
         choices=[p.value for p in Policy],
         default=Policy.DECAY.value,
@@ -82,6 +89,7 @@ def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, Polic
         free_threshold=args.free_threshold,
         p_miss_no_return=args.p_miss_no_return,
         no_return_range=args.no_return_range,
+        fill_between_beams=args.fill_between_beams,
     )
     decay = DecayParams(
         half_life_occupied=args.half_life_occupied, half_life_free=args.half_life_free

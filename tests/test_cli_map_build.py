@@ -106,6 +106,22 @@ def test_no_return_flags_set_the_no_return_evidence(tmp_path):
     assert np.count_nonzero(np.load(out / "logodds.npy")[1]) == 11  # to range_max: x = 10.5
 
 
+def test_the_fill_flag_turns_the_fill_between_beams_off(tmp_path):
+    # Two returns at 10 m, 0.2 rad apart, from (0.5, 1.5): 2 m apart there, so a fill ray
+    # along row 1 from 1 m / 0.2 rad = 5 m out to a cell short of their face.
+    path = tmp_path / "scans.jsonl"
+    write_scan_file(path, [make_scan([10.0, 10.0], y=1.5, angle_min=-0.1, angle_increment=0.2)])
+    out = tmp_path / "map"
+    assert main(["map", "build", str(path), *ARGS, "--out", str(out)]) == 0
+    filled = np.load(out / "logodds.npy")[1]
+    assert filled[6:10] == pytest.approx([math.log(0.4 / 0.6)] * 4)  # x 6..9.45: the fill's
+    assert filled[10] == 0.0  # the face's cell
+    assert (
+        main(["map", "build", str(path), *ARGS, "--out", str(out), "--no-fill-between-beams"]) == 0
+    )
+    assert np.all(np.load(out / "logodds.npy")[1][6:] == 0.0)
+
+
 def test_a_missing_scan_file_is_a_clear_error(tmp_path, capsys):
     assert main(["map", "build", str(tmp_path / "nope.jsonl"), *ARGS]) == 2
     assert "cannot read" in capsys.readouterr().err

@@ -318,10 +318,43 @@ def test_a_data_dir_from_before_no_return_evidence_opens_only_under_its_own_rule
     )
 
     old = _map_settings(load_settings(None, {}))
-    for name in ("p_miss_no_return", "no_return_range"):
+    for name in ("p_miss_no_return", "no_return_range", "fill_between_beams"):
         del old["sensor_model"][name]
     (tmp_path / MAP_SETTINGS_FILE).write_text(json.dumps(old))
     with pytest.raises(DataDirError, match="sensor_model differ"):
         _check_map_settings(tmp_path, _map_settings(load_settings(None, {})))
-    legacy = {"sensor_model": {"p_miss_no_return": 0.4, "no_return_range": None}}
+    legacy = {
+        "sensor_model": {
+            "p_miss_no_return": 0.4,
+            "no_return_range": None,
+            "fill_between_beams": False,
+        }
+    }
     _check_map_settings(tmp_path, _map_settings(load_settings(None, legacy)))  # accepted
+
+
+def test_a_data_dir_from_before_the_fill_between_beams_opens_only_without_it(tmp_path) -> None:
+    """Its map-settings.json lacks ``fill_between_beams``: it was fused beams only."""
+    from mapserver.service import (
+        MAP_SETTINGS_FILE,
+        DataDirError,
+        _check_map_settings,
+        _map_settings,
+        read_map_settings,
+    )
+
+    old = _map_settings(load_settings(None, {}))
+    del old["sensor_model"]["fill_between_beams"]
+    (tmp_path / MAP_SETTINGS_FILE).write_text(json.dumps(old))
+    assert read_map_settings(tmp_path)["sensor_model"]["fill_between_beams"] is False
+    with pytest.raises(DataDirError, match="sensor_model differ"):
+        _check_map_settings(tmp_path, _map_settings(load_settings(None, {})))
+    beams_only = {"sensor_model": {"fill_between_beams": False}}
+    _check_map_settings(tmp_path, _map_settings(load_settings(None, beams_only)))  # accepted
+
+
+def test_the_fill_between_beams_defaults_on_and_a_bad_value_names_the_field() -> None:
+    assert load_settings(None, {}).build_sensor_model().fill_between_beams is True
+    (line,) = problems(sensor_model={"fill_between_beams": "sometimes"})
+    assert line.startswith("sensor_model.fill_between_beams:")
+    assert "sometimes" in line
