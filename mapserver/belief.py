@@ -155,8 +155,8 @@ class BeliefGrid:
         if not scans:
             return []
         m, d = self.sensor_model, self.decay
-        params = np.empty((len(scans), 12), dtype=np.float64)
-        fill_margin = self.fill_margin
+        params = np.empty((len(scans), 13), dtype=np.float64)
+        fill_margin, glance_margin = self.fill_margin, self.glance_margin
         for k, scan in enumerate(scans):
             std = scan.pose_std
             params[k] = (
@@ -172,6 +172,7 @@ class BeliefGrid:
                 std.xy**2 if std is not None else 0.0,
                 std.yaw**2 if std is not None else 0.0,
                 fill_margin,
+                glance_margin,
             )
         offsets = np.zeros(len(scans) + 1, dtype=np.int64)
         np.cumsum([s.beam_count for s in scans], out=offsets[1:])
@@ -219,6 +220,15 @@ class BeliefGrid:
         ``fill_between_beams``; 0 (no fill) otherwise, and always for ``binary``, the Nav2
         baseline, which traces its beams only (docs/clearing.md)."""
         if self.policy is Policy.BINARY or not self.sensor_model.fill_between_beams:
+            return 0.0
+        return self.geometry.resolution
+
+    @property
+    def glance_margin(self) -> float:
+        """[m] how near, square to the surface it hit, a return clears: one cell, for the
+        log-odds policies with the sensor model's ``guard_glancing_faces``; 0 (up to its
+        endpoint) otherwise, and always for ``binary`` (docs/clearing.md)."""
+        if self.policy is Policy.BINARY or not self.sensor_model.guard_glancing_faces:
             return 0.0
         return self.geometry.resolution
 

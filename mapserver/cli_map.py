@@ -59,6 +59,13 @@ def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
         "(log-odds policies; docs/clearing.md)",
     )
     group.add_argument(
+        "--guard-glancing-faces",
+        action=argparse.BooleanOptionalAction,
+        default=d.guard_glancing_faces,
+        help="a return stops clearing a cell short of the surface it hit, square to it "
+        "(log-odds policies; docs/clearing.md)",
+    )
+    group.add_argument(
         "--policy",
         choices=[p.value for p in Policy],
         default=Policy.DECAY.value,
@@ -90,6 +97,7 @@ def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, Polic
         p_miss_no_return=args.p_miss_no_return,
         no_return_range=args.no_return_range,
         fill_between_beams=args.fill_between_beams,
+        guard_glancing_faces=args.guard_glancing_faces,
     )
     decay = DecayParams(
         half_life_occupied=args.half_life_occupied, half_life_free=args.half_life_free

@@ -11,6 +11,8 @@ The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et
    cross NO_RETURN (weaker evidence, docs/no-return.md); a mark only ever strengthens
    (NONE < NO_RETURN < FREE < HIT), so a cell crossed by many beams is recorded once
    and a HIT is never downgraded.
+   A return glancing along the surface it hit stops where it comes within a cell of it,
+   square to it (``glance_cutoff``; the sensor model's ``guard_glancing_faces``).
    Where beams are more than a cell apart, the wedge between two neighbouring returns is
    filled with rays of its own up to a margin short of the surface the two outline
    (``fill_between``; the sensor model's ``fill_between_beams``), marked FREE.
@@ -86,9 +88,10 @@ def cell_of(v, origin, inv_res, n):
 
 
 @njit(cache=True, nogil=True)
-def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark):
+def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
     """Bresenham from cell (c0, r0) to (c1, r1); raise weaker marks to ``mark``; returns
-    the new n (a cell enters ``touched`` once, when first marked)."""
+    the new n (a cell enters ``touched`` once, when first marked). max_cells >= 0 stops
+    after that many cells of the same line (a prefix of it)."""
     dc = c1 - c0
     dr = r1 - r0
     adc = abs(dc)
@@ -100,6 +103,8 @@ def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark):
     else:
         major, minor, a, b = step_r, step_c, adr, adc
     count = a + 1 if include_last else a
+    if max_cells >= 0 and max_cells < count:
+        count = max_cells
     idx = r0 * width + c0
     err = a >> 1
     for _ in range(count):
@@ -135,6 +140,7 @@ def mark_scan(
     range_max,
     clearing_range,
     fill_margin,
+    glance_margin,
     box,
 ):
     """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
@@ -142,7 +148,9 @@ def mark_scan(
     ranges: [m] per beam, REP 117 semantics; clearing_range: [m] how far a no-return
     beam clears (<= 0: no-return beams mark nothing); fill_margin: [m] how far the
     fill between beams keeps from the surface two neighbouring returns outline (<= 0:
-    no fill; see ``fill_between``). touched[:n] receives the flat
+    no fill; see ``fill_between``); glance_margin: [m] how near, square to the surface
+    it hit, a return clears (<= 0: up to its endpoint; see ``glance_cutoff``).
+    touched[:n] receives the flat
     indices of the marked cells; box (int64[4]) receives their bounding box (col_min,
     row_min, col_max, row_max), inclusive, or (0, 0, -1, -1) when no cell is touched.
     """
@@ -156,6 +164,8 @@ def mark_scan(
     xmax = origin_x + width * resolution
     ymax = origin_y + height * resolution
     nbeams = ranges.shape[0]
+    sin_step = abs(math.sin(angle_increment))
+    cos_step = math.cos(angle_increment)
     n = 0
     # Step 1: endpoints of returns that land on the map.
     for i in range(nbeams):
@@ -191,6 +201,11 @@ def mark_scan(
             is_return = False
         else:
             continue  # invalid: NaN, negative, below range_min
+        cut = 0.0
+        if is_return and glance_margin > 0.0:
+            cut = glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, glance_margin)
+            if not cut < r:
+                continue  # the whole beam glances along the surface it hit
         a = sensor_yaw + angle_min + i * angle_increment
         ex = sensor_x + length * math.cos(a)
         ey = sensor_y + length * math.sin(a)
@@ -208,7 +223,17 @@ def mark_scan(
         # A return whose endpoint is on the map stops before its own (HIT) cell.
         endpoint_on_map = is_return and t1 >= 1.0
         mark = MARK_FREE if is_return else MARK_NO_RETURN
-        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map, mark)
+        max_cells = -1
+        if cut > 0.0:  # the same line, stopped at the cell of its cut
+            t_cut = 1.0 - cut / r
+            if not t_cut > t0:
+                continue
+            if t_cut < t1:
+                cc = cell_of(sensor_x + t_cut * dx, origin_x, inv_res, width)
+                rc = cell_of(sensor_y + t_cut * dy, origin_y, inv_res, height)
+                major = abs(cc - c0) if abs(c1 - c0) >= abs(r1 - r0) else abs(rc - r0)
+                max_cells = major + 1
+        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
@@ -228,6 +253,61 @@ def mark_scan(
     box[2] = cmax
     box[3] = rmax
     return n
+
+
+GLANCE_CAP_CELLS = 10.0
+"""[cells] the most a return's clearing is cut short by ``glance_cutoff``."""
+
+
+GLANCE_MAX_BEND = math.cos(math.radians(20.0))
+"""The two halves of a surface seen as one bend by 20 degrees at most (as cosine)."""
+
+
+@njit(cache=True, nogil=True)
+def glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, margin):
+    """[m] how much shorter than its range return ``i`` clears: so that it stops where it
+    comes within ``margin`` [m] of the surface it hit, measured square to that surface,
+    less the ``margin`` a square beam stops at anyway (its own cell):
+    ``margin * (1 / sin(alpha) - 1)``, capped at ``GLANCE_CAP_CELLS * margin``.
+
+    The surface is known only where it is seen as one: both neighbouring returns
+    (i - 1, i + 1) and this one outline a straight face, the segments a -> this -> b
+    bending by ``GLANCE_MAX_BEND`` at most and a -> b at least two cells (``2 * margin``)
+    long, longer than range noise can fake; alpha is the angle between the beam and
+    a -> b. No cut otherwise: next to a no-return, at an occlusion edge (a neighbour on
+    another surface bends the outline), and near the sensor, where neighbours are closer
+    than the noise. sin_step, cos_step: of the angle between neighbouring beams. A beam
+    glancing along a face crosses the slivers of the face's cells before it hits the face
+    farther on; without the cut, those passes wear away a face that square beams keep
+    hitting (docs/clearing.md).
+    """
+    if i < 1 or i + 1 >= ranges.shape[0]:
+        return 0.0
+    before = ranges[i - 1]
+    after = ranges[i + 1]
+    if not (before >= range_min and before <= range_max):
+        return 0.0
+    if not (after >= range_min and after <= range_max):
+        return 0.0
+    r = ranges[i]
+    # In beam i's frame (this endpoint at (r, 0)): the neighbours' endpoints a and b.
+    ax = before * cos_step - r
+    ay = -before * sin_step
+    bx = after * cos_step - r
+    by = after * sin_step
+    la = math.sqrt(ax * ax + ay * ay)
+    lb = math.sqrt(bx * bx + by * by)
+    dx = bx - ax
+    dy = by - ay
+    chord = math.sqrt(dx * dx + dy * dy)
+    if not (la > 0.0 and lb > 0.0 and chord >= 2.0 * margin):
+        return 0.0
+    if (-ax * bx - ay * by) / (la * lb) < GLANCE_MAX_BEND:  # a -> this vs this -> b
+        return 0.0
+    sin_alpha = abs(dy) / chord
+    if not sin_alpha > 0.0 or sin_alpha >= 1.0:
+        return 0.0
+    return min(margin * (1.0 / sin_alpha - 1.0), GLANCE_CAP_CELLS * margin)
 
 
 MAX_FILL_RAYS = 64
@@ -493,10 +573,11 @@ def fuse_batch(
     """Fuse scans one after the other in one call (the GIL is released once for all).
 
     ranges: all scans' ranges [m] concatenated; scan k's are ranges[offsets[k]:offsets[k+1]].
-    scan_params: float64 (n, 12) per scan: sensor x, y [m], yaw [rad], angle_min,
+    scan_params: float64 (n, 13) per scan: sensor x, y [m], yaw [rad], angle_min,
     angle_increment [rad], range_min, range_max, clearing_range [m] (of no-return beams,
     <= 0: none), stamp [s], pose variances xy [m^2] and yaw [rad^2], fill_margin [m]
-    (of the fill between beams, <= 0: none). boxes (n, 4) and cells (n,) receive each scan's
+    (of the fill between beams, <= 0: none), glance_margin [m] (of the cut of glancing
+    returns, <= 0: none). boxes (n, 4) and cells (n,) receive each scan's
     bounding box and number of cells updated.
     """
     for k in range(offsets.shape[0] - 1):
@@ -504,7 +585,7 @@ def fuse_batch(
         n = mark_scan(
             marks, touched, width, height, origin_x, origin_y, resolution,
             p[0], p[1], p[2], p[3], p[4], ranges[offsets[k]:offsets[k + 1]],
-            p[5], p[6], p[7], p[11], boxes[k],
+            p[5], p[6], p[7], p[11], p[12], boxes[k],
         )  # fmt: skip
         apply_marks(
             log_odds, last_observed, marks, touched, n, width, origin_x, origin_y, resolution,

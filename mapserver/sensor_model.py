@@ -22,6 +22,9 @@ Defaults (CONTRACT section 1), in both units:
 - ``fill_between_beams = True``  # clear the cells between two neighbouring returns that
   neither beam crosses (1 degree beams are a 0.1 m cell apart at 5.7 m), so a moved
   obstacle's old place clears in under 2 s from a passing unit (docs/clearing.md)
+- ``guard_glancing_faces = True``  # a return glancing along a face stops clearing a cell
+  (square to the face) short of it, so the face's cells are not worn away by the passes
+  of beams that hit it farther on (docs/clearing.md)
 
 A no-return beam (REP 117: a range > range_max or +inf) reads nothing: the sensor saw no
 surface, or it dropped the beam (dust, a black or shiny surface, a glancing angle). It is
@@ -100,6 +103,10 @@ class SensorModel:
     fill_between_beams: where neighbouring beams are more than a cell apart, also clear
         the cells between two neighbouring returns, up to one cell short of the surface
         the two outline (log-odds policies only; docs/clearing.md).
+    guard_glancing_faces: a return stops clearing where it comes within one cell of the
+        surface it hit, square to that surface, so beams glancing along a face do not
+        wear away the face cells square beams hit (log-odds policies only;
+        docs/clearing.md).
     """
 
     p_hit: float = 0.7
@@ -112,12 +119,12 @@ class SensorModel:
     p_miss_no_return: float = 0.45
     no_return_range: float | None = 1.0
     fill_between_beams: bool = True
+    guard_glancing_faces: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.fill_between_beams, bool):
-            raise ValueError(
-                f"fill_between_beams must be true or false, got {self.fill_between_beams!r}"
-            )
+        for name in ("fill_between_beams", "guard_glancing_faces"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
             _probability(name, getattr(self, name))
         _probability("p_miss_no_return", self.p_miss_no_return)

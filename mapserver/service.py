@@ -476,8 +476,9 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     records no ``p_miss_no_return`` or ``no_return_range``: its journal was fused with
     no-return beams as strong as returns (``p_miss``) out to range_max (None), so those are
     the values filled in. Such a dir opens under those settings, not the new defaults.
-    One written before the fill between beams (docs/clearing.md) records no
-    ``fill_between_beams``: false is filled in.
+    One written before the fill between beams and the guard of glancing faces
+    (docs/clearing.md) records no ``fill_between_beams`` or ``guard_glancing_faces``:
+    false is filled in for each.
     """
     recorded = json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
     model = recorded.get("sensor_model")
@@ -486,6 +487,7 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
         model.setdefault("no_return_range", None)
     if isinstance(model, dict):
         model.setdefault("fill_between_beams", False)
+        model.setdefault("guard_glancing_faces", False)
     return recorded
 
 

@@ -159,6 +159,7 @@ class SensorModelSettings(_DomainSection):
     p_miss_no_return: float = _SENSOR.p_miss_no_return
     no_return_range: float | None = _SENSOR.no_return_range
     fill_between_beams: bool = _SENSOR.fill_between_beams
+    guard_glancing_faces: bool = _SENSOR.guard_glancing_faces
 
     def build(self) -> SensorModel:
         return SensorModel(**self.model_dump())

@@ -203,8 +203,10 @@ def test_read_json_names_the_problem():
     }
 
 
+# Integers of 64 bits are read exactly; wider ones as the nearest float (below).
+INT64 = st.integers(min_value=-(2**63), max_value=2**64 - 1)
 JSON_VALUES = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(),
+    st.none() | st.booleans() | INT64 | st.floats(allow_nan=False) | st.text(),
     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(), inner, max_size=4),
     max_leaves=30,
 )
@@ -213,6 +215,18 @@ JSON_VALUES = st.recursive(
 @given(JSON_VALUES)
 def test_read_json_reads_back_any_json_value(value):
     assert parse_json(json.dumps(value).encode()) == value
+
+
+@given(
+    st.integers(min_value=2**64, max_value=10**300)
+    | st.integers(max_value=-(2**63) - 1, min_value=-(10**300))
+)
+def test_read_json_reads_an_integer_wider_than_64_bits_as_the_nearest_float(value):
+    # No field of the API holds an integer: every number is a float (stamps, ranges, poses).
+    for body in (json.dumps(value), json.dumps([value, float("inf")])):  # both parsers
+        parsed = parse_json(body.encode())
+        parsed = parsed if isinstance(parsed, float) else parsed[0]
+        assert isinstance(parsed, float) and parsed == float(value)
 
 
 @given(st.binary(max_size=200))

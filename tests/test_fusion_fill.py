@@ -109,11 +109,12 @@ def test_filled_cells_lie_between_the_beams_in_front_of_the_outlined_surface(
     rows, cols = np.nonzero(changed)
     if rows.size == 0:
         return
-    # Cell centres relative to the sensor [m]; a traced cell's centre is within half a
-    # diagonal of the fill ray that crossed it.
+    # Cell centres relative to the sensor [m]. Bresenham runs from the centre of the ray's
+    # first cell to the centre of its last (each within half a diagonal of the ray's ends)
+    # and keeps within half a cell of that line: within 1.21 cells of the fill ray.
     cx = GEOMETRY.origin_x + (cols + 0.5) * RES - 0.05
     cy = GEOMETRY.origin_y + (rows + 0.5) * RES - 0.05
-    slack = RES * math.sqrt(2) / 2 + 1e-9
+    slack = 1.21 * RES
     ax, ay = range_a * math.cos(yaw), range_a * math.sin(yaw)
     bx, by = range_b * math.cos(yaw + step), range_b * math.sin(yaw + step)
     ex, ey = bx - ax, by - ay
@@ -121,7 +122,7 @@ def test_filled_cells_lie_between_the_beams_in_front_of_the_outlined_surface(
     # Signed distance from the segment's line, positive on the sensor's side.
     side = ((cx - ax) * ey - (cy - ay) * ex) / edge
     sensor_side = ((0 - ax) * ey - (0 - ay) * ex) / edge
-    assert np.all(np.sign(sensor_side) * side >= RES - slack)
+    assert np.all(np.sign(sensor_side) * side >= RES - slack)  # never past the surface
     # Between the two beams' directions (give or take the slack), beyond the start.
     bearing = np.arctan2(cy, cx) - yaw
     bearing = (bearing + math.pi) % (2 * math.pi) - math.pi

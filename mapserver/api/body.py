@@ -5,7 +5,9 @@ Bodies are strict JSON, plus ``Infinity``/``-Infinity``/``NaN`` (which the contr
 allows in ``ranges``). Refused with 400 naming the problem: nesting deeper than
 ``MAX_DEPTH`` (the API's deepest body, a unit's path, nests 4 levels; a 1,000-deep one
 would only exhaust the validators' recursion) and integers beyond the float range (no
-field of the API holds one; as a float such a number would be infinite).
+field of the API holds one; as a float such a number would be infinite). An integer
+wider than 64 bits but within the float range is read as the nearest float (orjson's
+reading; every number the API takes is a float).
 """
 
 from __future__ import annotations
@@ -86,11 +88,14 @@ def _nesting_kernel(text):
     return deepest
 
 
-def _float_range_int(text: str) -> int:
-    """A JSON integer, refused (ValueError) beyond the float range."""
+def _float_range_int(text: str) -> int | float:
+    """A JSON integer, refused (ValueError) beyond the float range; wider than 64 bits,
+    the nearest float (as orjson reads it)."""
     value = int(text)
     if abs(value) > FLOAT_MAX:
         raise ValueError(f"integer {text[:20]}... ({len(text)} digits) is beyond the float range")
+    if not -(2**63) <= value < 2**64:
+        return float(value)
     return value
 
 

@@ -1,0 +1,129 @@
+"""The guard of glancing faces: a return whose neighbours outline one straight surface
+with it stops clearing where it comes within a cell of that surface, square to it, so
+beams glancing along a face do not wear away the cells square beams hit
+(docs/clearing.md)."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mapserver.belief import BeliefGrid
+from mapserver.fusion_kernel import GLANCE_CAP_CELLS, glance_cutoff
+from mapserver.geometry import GridGeometry
+from mapserver.scan import Pose2D, Scan
+from mapserver.sensor_model import Policy, SensorModel
+
+RES = 0.1  # [m]
+GUARD = SensorModel(fill_between_beams=False)
+NO_GUARD = SensorModel(fill_between_beams=False, guard_glancing_faces=False)
+GEOMETRY = GridGeometry(200, 100, RES)  # 20 m x 10 m
+SENSOR = (1.05, 0.05)  # [m] the centre of cell (row 0, col 10)
+STEP = math.radians(1.0)  # [rad] between the three beams
+
+
+def face_ranges(angle: float, face_y: float) -> list[float]:
+    """Ranges [m] of three beams at angle - STEP, angle, angle + STEP to the line y = face_y."""
+    rise = face_y - SENSOR[1]
+    return [rise / math.sin(angle + k * STEP) for k in (-1, 0, 1)]
+
+
+def fused(model, ranges, angle, policy=Policy.DECAY) -> BeliefGrid:
+    b = BeliefGrid(GEOMETRY, model, policy)
+    b.fuse(Scan("u1", 1.0, Pose2D(*SENSOR, 0.0), angle - STEP, STEP, 0.05, 20.0,
+                np.asarray(ranges, dtype=float)))  # fmt: skip
+    return b
+
+
+def on_line(r: float, alpha: float, delta: float) -> float:
+    """[m] range at bearing ``delta`` [rad] to the line through (r, 0) at ``alpha`` [rad]
+    to the beam (the sine rule)."""
+    return r * math.sin(alpha) / math.sin(alpha - delta)
+
+
+def test_the_cut_is_a_cell_less_than_a_cell_over_the_sine_of_the_glancing_angle():
+    r, step = 5.0, 0.01
+    sin10 = math.sin(math.radians(10))
+    for alpha_deg, expected in ((10.0, RES * (1 / sin10 - 1)), (90.0, 0.0)):
+        alpha = math.radians(alpha_deg)
+        ranges = np.array([on_line(r, alpha, -step), r, on_line(r, alpha, step)])
+        cut = glance_cutoff(ranges, 1, 0.05, 20.0, math.sin(step), math.cos(step), RES)
+        assert cut == pytest.approx(expected, abs=1e-9)
+
+
+def test_the_cut_is_capped_and_needs_both_neighbours_on_one_line_with_it():
+    sin_s, cos_s = math.sin(STEP), math.cos(STEP)
+    grazing = np.array(face_ranges(math.radians(3.0), 0.15))  # 3 degrees: 1.81 m, capped
+    assert glance_cutoff(grazing, 1, 0.05, 20.0, sin_s, cos_s, RES) == GLANCE_CAP_CELLS * RES
+    edge = np.array([3.0, 3.0, 9.0])  # an occlusion edge: the three outline no one face
+    assert glance_cutoff(edge, 1, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
+    lone = np.array([math.inf, 3.0, 3.0])  # next to a no-return: no surface is known
+    assert glance_cutoff(lone, 1, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
+    assert glance_cutoff(np.array([3.0, 3.0]), 0, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
+
+
+def test_a_glancing_return_leaves_the_cells_along_the_face_alone():
+    # A face along y = 1.0 m (the top of row 9 is 1.0: the face cuts nothing), met at 10
+    # degrees: the middle beam stops 0.1 m / sin(10) - 0.1 m = 0.476 m short of it.
+    angle = math.radians(10.0)
+    ranges = face_ranges(angle, 1.0 + 1e-6)
+    guarded, unguarded = fused(GUARD, ranges, angle), fused(NO_GUARD, ranges, angle)
+    spared = (unguarded.raw_log_odds() < 0) & (guarded.raw_log_odds() == 0)
+    rows, cols = np.nonzero(spared)
+    assert len(rows) > 0  # cells only the glancing passes reached
+    # Every spared cell lies within a cell of the face, square to it: the cut ends
+    # 0.1 m * (1 - sin 10) = 0.083 m below y = 1 m, in row 9. Bresenham steps from cell
+    # centre to cell centre, and the endpoints' centres are in row 10 (y 1.05 m): the
+    # discrete line's last cells run along the face's own row, the wear this guard stops.
+    assert set(rows.tolist()) <= {8, 9, 10}
+    assert 10 in rows
+    cut = RES * (1 / math.sin(angle) - 1)
+    far = ranges[1] - cut  # where the middle beam now stops [m]
+    xs = GEOMETRY.origin_x + (cols + 0.5) * RES - SENSOR[0]
+    assert np.all(xs >= far * math.cos(angle) - RES)  # only the beam's last 0.476 m
+    # The endpoints' cells are hit either way.
+    assert np.array_equal(guarded.raw_log_odds() > 0, unguarded.raw_log_odds() > 0)
+
+
+def test_a_square_face_an_occlusion_edge_and_binary_are_as_before():
+    # Square to the beams at 8 m (a chord of 0.28 m: a surface is known, alpha ~90 deg),
+    # an occlusion edge, and three returns at 3 m whose chord (0.10 m) is under two cells.
+    for ranges in ([8.0, 8.0, 8.0], [3.0, 3.0, 9.0], [3.0, 3.0, 3.0]):
+        angle = math.radians(45)
+        guarded, unguarded = fused(GUARD, ranges, angle), fused(NO_GUARD, ranges, angle)
+        assert np.array_equal(guarded.raw_log_odds(), unguarded.raw_log_odds()), ranges
+    angle = math.radians(10.0)
+    ranges = face_ranges(angle, 1.0 + 1e-6)
+    a = fused(GUARD, ranges, angle, Policy.BINARY)
+    b = fused(NO_GUARD, ranges, angle, Policy.BINARY)
+    assert np.array_equal(a.raw_log_odds(), b.raw_log_odds())
+    assert a.glance_margin == 0.0
+
+
+def test_the_guard_is_on_by_default_and_refuses_a_non_boolean():
+    assert SensorModel().guard_glancing_faces is True
+    with pytest.raises(ValueError, match="guard_glancing_faces must be true or false, got 1"):
+        SensorModel(guard_glancing_faces=1)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    ranges=st.lists(st.one_of(st.floats(0.3, 19.0), st.just(math.inf)), min_size=2, max_size=60),
+    step_deg=st.floats(0.1, 3.0),
+    yaw=st.floats(-math.pi, math.pi),
+)
+def test_the_guard_only_ever_clears_less_and_never_touches_a_hit(ranges, step_deg, yaw):
+    step = math.radians(step_deg)
+    maps = []
+    for model in (GUARD, NO_GUARD):
+        b = BeliefGrid(GEOMETRY, model, Policy.DECAY)
+        b.fuse(Scan("u1", 1.0, Pose2D(*SENSOR, yaw), 0.0, step, 0.05, 20.0,
+                    np.asarray(ranges, dtype=float)))  # fmt: skip
+        maps.append(b.raw_log_odds())
+    guarded, unguarded = maps
+    assert np.array_equal(guarded > 0, unguarded > 0)  # the same cells hit
+    assert not ((guarded < 0) & ~(unguarded < 0)).any()  # nothing cleared it did not clear
+    cleared = guarded < 0
+    assert np.all(guarded[cleared] == unguarded[cleared])  # one update each, the same one
