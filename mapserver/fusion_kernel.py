@@ -87,6 +87,26 @@ def cell_of(v, origin, inv_res, n):
     return c
 
 
+@njit(cache=True, nogil=True, inline="always")
+def clipped_cells(x0, y0, x1, y1, origin_x, origin_y, resolution, width, height):
+    """Segment (x0, y0)-(x1, y1) [m] clipped to the map: (ok, t0, t1, c0, r0, c1, r1),
+    the kept part's fractions along it and the cells of its two ends (ok False: none)."""
+    inv_res = 1.0 / resolution
+    ok, t0, t1 = clip_segment(
+        x0, y0, x1, y1, origin_x, origin_y,
+        origin_x + width * resolution, origin_y + height * resolution,
+    )  # fmt: skip
+    if not ok:
+        return False, t0, t1, 0, 0, 0, 0
+    dx = x1 - x0
+    dy = y1 - y0
+    c0 = cell_of(x0 + t0 * dx, origin_x, inv_res, width)
+    r0 = cell_of(y0 + t0 * dy, origin_y, inv_res, height)
+    c1 = cell_of(x0 + t1 * dx, origin_x, inv_res, width)
+    r1 = cell_of(y0 + t1 * dy, origin_y, inv_res, height)
+    return True, t0, t1, c0, r0, c1, r1
+
+
 @njit(cache=True, nogil=True)
 def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
     """Bresenham from cell (c0, r0) to (c1, r1); raise weaker marks to ``mark``; returns
@@ -211,15 +231,13 @@ def mark_scan(
         ey = sensor_y + length * math.sin(a)
         if not (math.isfinite(ex) and math.isfinite(ey)):
             continue  # no direction (an infinite angle): the beam says nothing
-        ok, t0, t1 = clip_segment(sensor_x, sensor_y, ex, ey, xmin, ymin, xmax, ymax)
+        ok, t0, t1, c0, r0, c1, r1 = clipped_cells(
+            sensor_x, sensor_y, ex, ey, origin_x, origin_y, resolution, width, height
+        )
         if not ok:
             continue
         dx = ex - sensor_x
         dy = ey - sensor_y
-        c0 = cell_of(sensor_x + t0 * dx, origin_x, inv_res, width)
-        r0 = cell_of(sensor_y + t0 * dy, origin_y, inv_res, height)
-        c1 = cell_of(sensor_x + t1 * dx, origin_x, inv_res, width)
-        r1 = cell_of(sensor_y + t1 * dy, origin_y, inv_res, height)
         # A return whose endpoint is on the map stops before its own (HIT) cell.
         endpoint_on_map = is_return and t1 >= 1.0
         mark = MARK_FREE if is_return else MARK_NO_RETURN
@@ -368,11 +386,6 @@ def fill_between(
     edge = math.sqrt(ex * ex + ey * ey)
     if not (edge > 0.0 and math.isfinite(edge)):
         return n, cmin, rmin, cmax, rmax
-    inv_res = 1.0 / resolution
-    xmin = origin_x
-    ymin = origin_y
-    xmax = origin_x + width * resolution
-    ymax = origin_y + height * resolution
     for j in range(1, rays + 1):
         a = angle_a + angle_increment * j / (rays + 1)
         ux = math.cos(a)
@@ -389,15 +402,11 @@ def fill_between(
         y0 = sensor_y + start * uy
         x1 = sensor_x + t_end * ux
         y1 = sensor_y + t_end * uy
-        ok, t0, t1 = clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax)
+        ok, _, _, c0, r0, c1, r1 = clipped_cells(
+            x0, y0, x1, y1, origin_x, origin_y, resolution, width, height
+        )
         if not ok:
             continue
-        dx = x1 - x0
-        dy = y1 - y0
-        c0 = cell_of(x0 + t0 * dx, origin_x, inv_res, width)
-        r0 = cell_of(y0 + t0 * dy, origin_y, inv_res, height)
-        c1 = cell_of(x0 + t1 * dx, origin_x, inv_res, width)
-        r1 = cell_of(y0 + t1 * dy, origin_y, inv_res, height)
         n = _trace(marks, touched, n, width, c0, r0, c1, r1, True, MARK_FREE)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
