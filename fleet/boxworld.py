@@ -11,7 +11,7 @@ sample files.
   bounded chunks.
 - ``warehouse_layout``: perimeter walls, back-to-back rack rows split by cross-aisles,
   a staging area with loose pallets, and the grid of lane centre lines units drive on.
-- ``sample_scans``: ``mapserver.scan.Scan`` objects from units patrolling those lanes,
+- ``sample_scans``: ``mapserver.core.scan.Scan`` objects from units patrolling those lanes,
   with REP 117 ranges (no return beyond ``range_max`` is ``+inf``).
 """
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapserver.scan import Pose2D, Scan
+from mapserver.core.scan import Pose2D, Scan
 
 CHUNK_ELEMENTS = 1 << 18
 """Beams x boxes (or points x boxes) per vectorised chunk: ~2 MB per float64 temporary."""

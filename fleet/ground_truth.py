@@ -8,7 +8,7 @@ along each face than the cells a LiDAR's endpoints fall in. Units are not obstac
 
 The costmap is built as the map server builds it, with the same code: occupied cells are
 LETHAL, every other cell FREE (the truth has no unknown), then
-``mapserver.inflation.Inflator.apply`` inflates it with the server's ``InflationParams``.
+``mapserver.core.inflation.Inflator.apply`` inflates it with the server's ``InflationParams``.
 So a planner run on it sees the world as the map would if it were perfect.
 
 ``GroundTruth`` follows the world's change log: after a change it re-rasterises only the
@@ -27,11 +27,11 @@ import numpy as np
 from fleet.layout import Obstacle
 from fleet.shapes import Bounds
 from fleet.world import World
-from mapserver.belief import CellBox
-from mapserver.costmap import merge_regions
-from mapserver.costvalues import FREE, LETHAL
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams, Inflator
+from mapserver.core.belief import CellBox
+from mapserver.core.costvalues import FREE, LETHAL
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams, Inflator
+from mapserver.costmap.layered import merge_regions
 
 MAX_INCREMENTAL_CHANGES = 64
 """More changes than this since the last look: rebuild the whole grid instead."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fleet.shapes import wrap_angle
-from mapserver.scan import Pose2D, PoseStd
+from mapserver.core.scan import Pose2D, PoseStd
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import threading
 from collections.abc import Sequence
 
 from mapserver.client import MapClient, ScanAck
-from mapserver.scan import Scan
+from mapserver.core.scan import Scan
 
 DEFAULT_MAX_BATCH = 256
 """Scans per request: the map server's default ``limits.max_batch``."""

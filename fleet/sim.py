@@ -56,7 +56,7 @@ from fleet.shapes import wrap_angle
 from fleet.unit import DriveLimits, DriveUnit
 from fleet.world import World
 from mapserver.client import ScanAck
-from mapserver.scan import Pose2D, Scan
+from mapserver.core.scan import Pose2D, Scan
 
 SCHEDULE_TOLERANCE = 1e-9
 """Fraction of a LiDAR period (or of a second, for world changes) by which a step may fall

@@ -46,7 +46,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from fleet.shapes import wrap_angle
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 WAYPOINT_TOLERANCE_M = 0.01
 """[m] a stop waypoint is reached when the unit is this close to it."""

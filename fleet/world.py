@@ -44,7 +44,7 @@ import pybullet as p
 
 from fleet.layout import Layout, Obstacle
 from fleet.shapes import Box
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 RAY_BATCH_MAX = p.MAX_RAY_INTERSECTION_BATCH_SIZE - 1
 """Rays per ``rayTestBatch`` call: 16383, the design's chunk, one below PyBullet's

@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapserver.costvalues import LETHAL
-from mapserver.geometry import GridGeometry
-from mapserver.queries import query_segments
+from mapserver.core.costvalues import LETHAL
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.queries import query_segments
 
 if TYPE_CHECKING:
     from planner.lane_graph import LaneGraph
@@ -211,7 +211,7 @@ class TruthLanes:
 
     Keeps its own copy of ``graph`` (the live one is never touched); each call re-reads
     every lane of the copy from ``truth_costs`` (``LaneGraph.refresh`` through
-    ``mapserver.queries.query_segments``, the server's segment rule: a lane is blocked
+    ``mapserver.core.queries.query_segments``, the server's segment rule: a lane is blocked
     when a cell on it is lethal or inscribed) and asks the router (unblocked lanes,
     one-way lanes one way) whether the unit gets through:
 

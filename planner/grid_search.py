@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mapserver.costvalues import LETHAL, MAX_GRADED, UNKNOWN
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import LETHAL, MAX_GRADED, UNKNOWN
+from mapserver.core.geometry import GridGeometry
 
 NEUTRAL_COST = 50.0  # NavFn COST_NEUTRAL
 COST_FACTOR = 0.8  # NavFn COST_FACTOR

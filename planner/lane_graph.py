@@ -65,11 +65,10 @@ from typing import TYPE_CHECKING, Protocol
 import networkx as nx
 import numpy as np
 
-from mapserver.costvalues import MAX_GRADED
+from mapserver.core.costvalues import MAX_GRADED
 
 if TYPE_CHECKING:
     from fleet.boxworld import Warehouse
-    from mapserver.client import SegmentInfo
 
 Lane = tuple[str, str]
 """An undirected lane: its two end node ids in sorted order."""
@@ -77,10 +76,25 @@ Lane = tuple[str, str]
 NODE_KINDS = ("junction", "station", "waypoint")
 
 
+class SegmentReading(Protocol):
+    """One segment of the map as the lane graph reads it (``MapClient``'s ``SegmentInfo``,
+    CONTRACT 2.5): max_cost 0..255 (None: no known cell), blocked (a cell on it is lethal
+    or inscribed), unknown_fraction 0..1 of its cells, first_blocked (x, y) [m] or None."""
+
+    @property
+    def max_cost(self) -> int | None: ...
+    @property
+    def blocked(self) -> bool: ...
+    @property
+    def unknown_fraction(self) -> float: ...
+    @property
+    def first_blocked(self) -> tuple[float, float] | None: ...
+
+
 class SegmentQuerier(Protocol):
     """What the lane graph needs of the map: ``MapClient.query_segments`` (CONTRACT 2.5)."""
 
-    def query_segments(self, segments: Sequence[Sequence[float]]) -> Sequence[SegmentInfo]:
+    def query_segments(self, segments: Sequence[Sequence[float]]) -> Sequence[SegmentReading]:
         """One reading per segment ``(x0, y0, x1, y1)`` [m], in order."""
         ...
 
@@ -424,7 +438,7 @@ def _label_corridors(
 
 
 def _lane_reading(
-    a: tuple[float, float], b: tuple[float, float], fwd: SegmentInfo, back: SegmentInfo
+    a: tuple[float, float], b: tuple[float, float], fwd: SegmentReading, back: SegmentReading
 ) -> _Reading:
     """Combine the a->b and b->a readings of one lane (the module docstring's rule)."""
     known = [c for c in (fwd.max_cost, back.max_cost) if c is not None]

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapserver.costvalues import FREE, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.queries import query_segments
+from mapserver.core.costvalues import FREE, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.queries import query_segments
 from planner.grid_search import GridPlanner, PlanResult
 from planner.path_smoothing import smooth_path
 

@@ -23,8 +23,8 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-from mapserver.costvalues import INSCRIBED, LETHAL
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import INSCRIBED, LETHAL
+from mapserver.core.geometry import GridGeometry
 
 Point = tuple[float, float]
 

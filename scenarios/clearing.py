@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fleet.ground_truth import cells_of_bounds
-from mapserver.costvalues import LETHAL
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import LETHAL
+from mapserver.core.geometry import GridGeometry
 
 
 @dataclass

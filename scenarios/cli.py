@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mapserver.cli_journal import add_journal_parser
-from mapserver.cli_map import add_map_parser
-from mapserver.cli_serve import add_serve_parsers
-from planner.cli_plan import add_plan_parser
+from mapserver.cli.journal import add_journal_parser
+from mapserver.cli.map_build import add_map_parser
+from mapserver.cli.serve import add_serve_parsers
+from scenarios.cli_plan import add_plan_parser
 from scenarios.cli_run import add_run_parsers
 from scenarios.cli_sweep import add_sweep_parser
 from scenarios.compare import add_compare_parser

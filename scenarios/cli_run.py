@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from mapserver.sensor_model import Policy
+from mapserver.core.sensor_model import Policy
 
 METRICS_FILE = "metrics.json"
 TABLE_COLUMNS = (

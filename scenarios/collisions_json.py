@@ -27,7 +27,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from mapserver.atomic import write_json
+from mapserver.store.atomic import write_json
 from scenarios.record import RunRecord
 
 if TYPE_CHECKING:

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mapserver.sensor_model import Policy
+from mapserver.core.sensor_model import Policy
 
 __all__ = ["CSV_FILENAME", "MD_FILENAME", "add_compare_parser", "parse_policies", "run_compare"]
 
@@ -70,7 +70,7 @@ def parse_policies(text: str) -> tuple[str, ...]:
 
 def run_compare(args: argparse.Namespace) -> int:
     """The ``compare`` handler (module docstring for the exit status)."""
-    from mapserver.atomic import atomic_output
+    from mapserver.store.atomic import atomic_output
     from scenarios.compare_table import compare_markdown
     from scenarios.sweep import ScenarioError, Sweep, check_sweep, expand
     from scenarios.sweep_results import write_csv

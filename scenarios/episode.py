@@ -37,7 +37,7 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, StepResult
 from fleet.world import World
 from mapserver.client import Grid, MapClient
-from mapserver.queries import query_segments
+from mapserver.core.queries import query_segments
 from planner.coordinator import LaneCoordinator
 from planner.freeze import TruthLanes, classify
 from planner.grid_search import GridPlanner

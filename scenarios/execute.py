@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import atomic_output
+from mapserver.store.atomic import atomic_output
 from scenarios.collisions_json import write_collisions
 from scenarios.freezes_json import write_freezes
 from scenarios.replay_mcap import REPLAY_FILENAME, write_replay

@@ -18,7 +18,7 @@ import numpy as np
 
 from fleet.poster import ScanPoster
 from mapserver.client import ScanAck
-from mapserver.scan import Scan
+from mapserver.core.scan import Scan
 
 
 class FleetMemberFilter:

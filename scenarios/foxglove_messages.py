@@ -33,7 +33,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 from scenarios.foxglove_schemas import LOG_LEVELS, NUMERIC_TYPES
 from scenarios.record import ObjectState, PlanSample, ScanSample, UnitSample
 

@@ -31,7 +31,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import write_json
+from mapserver.store.atomic import write_json
 from scenarios.record import BlockingCell, FreezeRecord, RecoveryStep, RunRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms

@@ -47,8 +47,8 @@ from scipy import ndimage
 
 from fleet.ground_truth import rasterise
 from fleet.shapes import Cylinder
-from mapserver.costvalues import INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
 from scenarios.record import MapTruthSample
 
 KEYS = ("phantom_cells", "forgotten_cells", "unknown_share")

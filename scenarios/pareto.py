@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from mapserver.atomic import atomic_output
+from mapserver.store.atomic import atomic_output
 from scenarios.metric_values import metric_value
 from scenarios.sweep import Scalar, Sweep
 from scenarios.sweep_results import cell_text

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapserver.geometry import GridGeometry
-from mapserver.scan import PoseStd
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import PoseStd
 from scenarios.replay_fused import FusedScans
 
 if TYPE_CHECKING:

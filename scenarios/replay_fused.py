@@ -3,7 +3,7 @@ so that ``fleetmap replay`` rebuilds the server's map bit for bit.
 
 Source: the data dir of the run's own server once it has stopped: its map settings
 (``map-settings.json``: grid, sensor model, policy, decay, max clearing range) and its
-journal read as the server reads it at start-up (``mapserver.replay.journal_records``:
+journal read as the server reads it at start-up (``mapserver.service.replay.journal_records``:
 seq order, damaged records and clock-rule breakers left out), which is the order the
 server fused them in. The journal is read while the replay is written, one scan at a
 time, so a long run's scans are never all in memory.
@@ -43,9 +43,9 @@ from typing import Any
 import numpy as np
 import orjson
 
-from mapserver.journal import JOURNAL_FILENAME
-from mapserver.replay import journal_records, read_settings
-from mapserver.scan import Scan
+from mapserver.core.scan import Scan
+from mapserver.service.replay import journal_records, read_settings
+from mapserver.store.journal import JOURNAL_FILENAME
 
 FUSED_TOPIC = "/fleetmap/scans"
 FUSED_SCHEMA_NAME = "fleetmap.FusedScan"
@@ -81,7 +81,7 @@ class FusedScans:
 
 def read_fused(data_dir: Path, folder: TemporaryDirectory | None = None) -> FusedScans:
     """The map settings and journal of a stopped server's ``data_dir``
-    (``mapserver.replay.ReplayError`` when it holds no settings); ``folder``, the
+    (``mapserver.service.replay.ReplayError`` when it holds no settings); ``folder``, the
     temporary folder that holds ``data_dir``, is removed when the result is."""
     fused = FusedScans(read_settings(data_dir), Path(data_dir) / JOURNAL_FILENAME)
     if folder is not None:

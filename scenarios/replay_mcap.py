@@ -29,7 +29,7 @@ record ``fleetmap.run`` holds the scenario, policy, seed and the map's grid geom
 
 ``read_fused_replay`` gives the map settings and the fused scans back exactly, in the
 server's fusion order; ``read_scans`` gives the sampled LaserScans back as
-``mapserver.scan.Scan``: stamps to the nanosecond, x, y, angle_min, angle_increment,
+``mapserver.core.scan.Scan``: stamps to the nanosecond, x, y, angle_min, angle_increment,
 range limits and pose_std exactly, yaw to ~1e-16 rad (through a quaternion; wrapped to
 (-pi, pi]), ranges exactly as float32 with REP 117 classes kept (-inf comes back as NaN:
 both invalid).
@@ -54,9 +54,9 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
 from fleet.unit import DriveLimits
-from mapserver.atomic import atomic_output
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.store.atomic import atomic_output
 from scenarios.foxglove_messages import (
     Message,
     decode_ranges,

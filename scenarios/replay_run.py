@@ -1,6 +1,6 @@
 """``fleetmap replay`` of a run: a run folder (with ``replay.mcap``) or the ``.mcap`` file
 itself is rebuilt into a map like ``map build``; anything else goes to the server-journal
-replay (``mapserver.cli_serve.run_replay``).
+replay (``mapserver.cli.serve.run_replay``).
 
 A run's replay holds every scan its own map server fused and that server's map settings
 (``scenarios.replay_fused``): they are fused in the server's order with its settings, so
@@ -17,12 +17,12 @@ import json
 import sys
 from pathlib import Path
 
-from mapserver.belief import BeliefGrid
-from mapserver.cli_serve import run_replay as run_journal_replay
-from mapserver.cli_serve import write_replayed
-from mapserver.replay import ReplayError, belief_for
-from mapserver.scan import Scan
-from mapserver.sensor_model import Policy
+from mapserver.cli.serve import run_replay as run_journal_replay
+from mapserver.cli.serve import write_replayed
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import Policy
+from mapserver.service.replay import ReplayError, belief_for
 from scenarios.replay_mcap import (
     REPLAY_FILENAME,
     ReplayFileError,

@@ -38,8 +38,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from mapserver.atomic import atomic_output
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
+from mapserver.store.atomic import atomic_output
 from scenarios.record import EventRecord, FreezeRecord, RunRecord
 from scenarios.report_map_truth import draw_map_truth
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import httpx
 
 from mapserver.client import MapClient
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 from scenarios.embedded_server import EmbeddedServer
 from scenarios.episode import Episode, RunOptions
 from scenarios.observers import Observer, ProgressReport

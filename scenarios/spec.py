@@ -39,11 +39,11 @@ from fleet.lidar import LidarConfig
 from fleet.localization import PoseNoise
 from fleet.sim import UnitSpec
 from fleet.unit import DriveLimits
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams
-from mapserver.scan import Pose2D
-from mapserver.sensor_model import Policy
-from mapserver.settings import Settings
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams
+from mapserver.core.scan import Pose2D
+from mapserver.core.sensor_model import Policy
+from mapserver.service.settings import Settings
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
 from scenarios.spec_events import (

@@ -3,7 +3,7 @@
 The section uses the server config's own names (``policy``, ``sensor_model``, ``decay``,
 ``inflation``, ``max_clearing_range``) plus ``resolution`` [m/cell]; the grid covers the
 whole floor from origin (0, 0). It is checked by building the server's ``Settings``
-through ``mapserver.settings.load_settings``, never by rules of its own: the server's
+through ``mapserver.service.settings.load_settings``, never by rules of its own: the server's
 first problem becomes a ScenarioError at ``map_server.<its field>``. Every value is
 pinned (defaults filled in, ``inflation.inscribed_radius`` defaulting to the units'
 radius, as Nav2 derives it from the footprint), so ``FLEETMAP_*`` variables cannot
@@ -19,8 +19,8 @@ from typing import Any
 
 from fleet.layout import Layout
 from fleet.unit import DriveLimits
-from mapserver.sensor_model import Policy
-from mapserver.settings import (
+from mapserver.core.sensor_model import Policy
+from mapserver.service.settings import (
     DecaySettings,
     GridSettings,
     InflationSettings,

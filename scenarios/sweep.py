@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mapserver.sensor_model import Policy
+from mapserver.core.sensor_model import Policy
 from scenarios.spec import load_scenario
 from scenarios.spec_yaml import Document, Fields, ScenarioError, check_text, is_number, parse_yaml
 

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import atomic_output
+from mapserver.store.atomic import atomic_output
 from scenarios.sweep import Sweep
 from scenarios.sweep_run import RunResult
 

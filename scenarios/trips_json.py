@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mapserver.atomic import write_json
+from mapserver.store.atomic import write_json
 from scenarios.record import RunRecord, TripRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from hypothesis import HealthCheck, settings
 
-from mapserver.scan import Pose2D, PoseStd, Scan
+from mapserver.core.scan import Pose2D, PoseStd, Scan
 
 # Behaviour, never speed: no per-example deadline, and a slow machine is not a failure.
 settings.register_profile("fleetmap", deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from mapserver.settings import Settings, load_settings
+from mapserver.service.settings import Settings, load_settings
 from scenarios.embedded_server import EmbeddedServer
 
 GRID = {"width": 200, "height": 100, "resolution": 0.1}  # 20 m x 10 m

@@ -10,7 +10,7 @@ from server_helpers import JSON, scan_body, small_settings
 
 from mapserver.api.app import create_app
 from mapserver.client import MapClient
-from mapserver.costvalues import LETHAL, UNKNOWN
+from mapserver.core.costvalues import LETHAL, UNKNOWN
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
 TOKENS = [

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from server_helpers import scan_body, small_settings
 
 from mapserver.api.app import create_app
-from mapserver.scan import Scan
+from mapserver.core.scan import Scan
 
 # The endpoints of scan_body's beams 80..120 (3 m from (5, 5)): cells u1..u3 see occupied.
 WALL_POINTS = [

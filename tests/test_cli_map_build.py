@@ -10,7 +10,7 @@ import pytest
 import yaml
 from conftest import make_scan
 
-from mapserver.scanfile import write_scan_file
+from mapserver.store.scanfile import write_scan_file
 from scenarios.cli import main
 
 ARGS = ["--width", "12", "--height", "3", "--resolution", "1.0", "--origin", "0,0"]

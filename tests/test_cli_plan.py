@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 
-from mapserver.geometry import GridGeometry
-from mapserver.mapfiles import write_ros_map
+from mapserver.core.geometry import GridGeometry
+from mapserver.store.mapfiles import write_ros_map
 from scenarios.cli import main
 
 

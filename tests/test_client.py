@@ -31,7 +31,7 @@ from mapserver.client import (
     SegmentInfo,
     Unauthorized,
 )
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 
 BASE = "http://map.test:8700"
 GEOMETRY = GridGeometry(width=4, height=3, resolution=0.5, origin_x=-1.0, origin_y=2.0)

@@ -7,14 +7,14 @@ from conftest import make_scan
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid, CellBox
-from mapserver.costmap import LayeredCostmap
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams
-from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
-from mapserver.mapfiles import RosMap
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.belief import BeliefGrid, CellBox
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.costmap.layered import LayeredCostmap
+from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
+from mapserver.store.mapfiles import RosMap
 
 GEOMETRY = GridGeometry(40, 24, 0.1)
 INFLATION = InflationParams(inflation_radius=0.35, cost_scaling_factor=10.0, inscribed_radius=0.15)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mapserver import costvalues as cv
+from mapserver.core import costvalues as cv
 
 
 def test_cost_values_are_nav2s():

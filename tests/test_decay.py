@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import make_scan
 
-from mapserver.belief import BeliefGrid, CellState
-from mapserver.geometry import GridGeometry
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.belief import BeliefGrid, CellState
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 
 M = SensorModel()
 D = DecayParams(half_life_occupied=10.0, half_life_free=40.0, fade_bound=0.05)

@@ -22,7 +22,7 @@ import httpx
 import pytest
 import yaml
 
-from mapserver.settings import SettingsError, load_settings
+from mapserver.service.settings import SettingsError, load_settings
 from scenarios.cli import build_parser
 from scenarios.embedded_server import free_port
 

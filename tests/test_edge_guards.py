@@ -14,7 +14,7 @@ from server_helpers import JSON, scan_body, small_settings
 from mapserver.api.app import create_app
 from mapserver.api.body import MAX_DEPTH, parse_json
 from mapserver.api.guards import LocalOnlyMiddleware
-from mapserver.settings import load_settings
+from mapserver.service.settings import load_settings
 
 PLAN = {"start": [1.0, 1.0], "goal": [2.0, 2.0]}
 HUGE = "1" + "0" * 400  # 10^400: a JSON integer beyond the float range

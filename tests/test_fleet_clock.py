@@ -3,7 +3,7 @@
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mapserver.fleet_clock import FleetClock
+from mapserver.service.fleet_clock import FleetClock
 
 WALL = 1.8e9  # [s] the server's epoch clock in these tests
 

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.scan import Pose2D, Scan
+from mapserver.core.scan import Pose2D, Scan
 from scenarios.fleet_filter import FleetMemberFilter
 
 MARGIN = 0.15

@@ -9,9 +9,9 @@ from fleet.ground_truth import GroundTruth, rasterise
 from fleet.layout import Kind, Layout, Obstacle
 from fleet.shapes import Box, Cylinder
 from fleet.world import World
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams, Inflator, inflation_cost
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams, Inflator, inflation_cost
 
 GRID = GridGeometry(100, 80, 0.1)  # 10 m x 8 m
 PARAMS = InflationParams()

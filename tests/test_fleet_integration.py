@@ -13,8 +13,8 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, UnitSpec
 from fleet.world import World
 from mapserver.client import MapClient
-from mapserver.inflation import InflationParams
-from mapserver.scan import Pose2D
+from mapserver.core.inflation import InflationParams
+from mapserver.core.scan import Pose2D
 
 
 def test_units_post_scans_that_the_map_server_fuses(tmp_path):

@@ -10,7 +10,7 @@ from fleet.layout import Kind, Layout, Obstacle
 from fleet.lidar import Lidar, LidarConfig
 from fleet.shapes import Box, Cylinder
 from fleet.world import RAY_BATCH_MAX, World
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 RADIUS = 0.3  # [m] the unit's body
 

@@ -9,7 +9,7 @@ import pytest
 
 from fleet.poster import ScanPoster
 from mapserver.client import MapClient, MapRequestError
-from mapserver.scan import Pose2D, Scan
+from mapserver.core.scan import Pose2D, Scan
 
 
 def scans(n: int, stamp: float) -> list[Scan]:

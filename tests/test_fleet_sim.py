@@ -13,10 +13,10 @@ from fleet.localization import PoseNoise
 from fleet.shapes import Box, Cylinder
 from fleet.sim import FleetSim, UnitSpec
 from fleet.world import World
-from mapserver.costvalues import FREE, LETHAL
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams
-from mapserver.scan import Pose2D, PoseStd
+from mapserver.core.costvalues import FREE, LETHAL
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams
+from mapserver.core.scan import Pose2D, PoseStd
 
 WAREHOUSE = warehouse_layout(30.0, 20.0, seed=3, cross_aisle_every_m=10.0)
 LAYOUT = Layout.from_warehouse(WAREHOUSE)

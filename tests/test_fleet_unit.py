@@ -13,7 +13,7 @@ from fleet.unit import (
     DriveUnit,
     stopping_speed,
 )
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 LIMITS = DriveLimits(max_speed=1.5, max_accel=1.0, max_turn_rate=1.5)
 

@@ -7,7 +7,7 @@ from fleet.layout import Kind, Layout, LayoutError, Obstacle
 from fleet.lidar import Lidar, LidarConfig
 from fleet.shapes import Box, Cylinder
 from fleet.world import UNIT_KIND, World
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 RACK = Obstacle("rack-1", Kind.RACK, Box(6.0, 5.0, 2.0, 1.0))
 

@@ -7,10 +7,10 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.scan import MAX_POSE_STD, Pose2D, Scan, ScanError
-from mapserver.sensor_model import Policy
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import MAX_POSE_STD, Pose2D, Scan, ScanError
+from mapserver.core.sensor_model import Policy
 
 GEOMETRY = GridGeometry(60, 40, 0.1)  # 6 m x 4 m
 HUGE = st.sampled_from([1e-300, 1e-12, 1e12, 1e300, 1.7e308, -1e300, 10**300])

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import make_scan
 
-from mapserver.belief import BeliefGrid, CellBox, CellState
-from mapserver.geometry import GridGeometry
-from mapserver.scan import PoseStd
-from mapserver.sensor_model import Policy, SensorModel
+from mapserver.core.belief import BeliefGrid, CellBox, CellState
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import PoseStd
+from mapserver.core.sensor_model import Policy, SensorModel
 
 M = SensorModel()
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Pose2D, Scan
-from mapserver.sensor_model import Policy, SensorModel, logit
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Pose2D, Scan
+from mapserver.core.sensor_model import Policy, SensorModel, logit
 
 RES = 0.1  # [m]
 ONE_DEGREE = math.radians(1.0)

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid
-from mapserver.fusion_kernel import GLANCE_CAP_CELLS, glance_cutoff
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Pose2D, Scan
-from mapserver.sensor_model import Policy, SensorModel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.fusion_kernel import GLANCE_CAP_CELLS, glance_cutoff
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Pose2D, Scan
+from mapserver.core.sensor_model import Policy, SensorModel
 
 RES = 0.1  # [m]
 GUARD = SensorModel(fill_between_beams=False)

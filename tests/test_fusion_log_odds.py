@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from conftest import make_scan, p_of
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.sensor_model import Policy, SensorModel, sigmoid
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.sensor_model import Policy, SensorModel, sigmoid
 
 CELL = 4
 HIT_RANGE = 3.5  # ends in cell 4

@@ -9,9 +9,9 @@ from conftest import make_scan
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.sensor_model import Policy, SensorModel, logit
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.sensor_model import Policy, SensorModel, logit
 
 M = SensorModel()  # p_miss_no_return 0.45, no_return_range 1 m
 FAR = SensorModel(no_return_range=5.0)

@@ -7,10 +7,10 @@ from conftest import make_scan
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.scan import BEAM_NO_RETURN, BEAM_RETURN, PoseStd
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import BEAM_NO_RETURN, BEAM_RETURN, PoseStd
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 
 GEOMETRY = GridGeometry(30, 20, 0.25, origin_x=-1.0, origin_y=0.5)
 MODEL = SensorModel()

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mapserver.geometry import GridGeometry, OutsideMapError
+from mapserver.core.geometry import GridGeometry, OutsideMapError
 
 
 def test_world_to_cell_uses_outer_corner_origin_and_bottom_row_zero():

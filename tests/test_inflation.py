@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from mapserver.belief import CellBox
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.inflation import InflationParams, Inflator, inflation_cost, merge_inflation
+from mapserver.core.belief import CellBox
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.inflation import InflationParams, Inflator, inflation_cost, merge_inflation
 
 RES = 0.05  # [m/cell]
 DEFAULTS = InflationParams()  # 0.55 m radius, k = 10 /m, 0.3 m inscribed

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mapserver.journal import (
+from mapserver.store.journal import (
     SCHEMA_VERSION,
     Journal,
     JournalError,
@@ -250,7 +250,7 @@ def test_bad_synchronous_names_the_value(tmp_path: Path) -> None:
 _WRITER = textwrap.dedent(
     """
     import sys
-    from mapserver.journal import Journal
+    from mapserver.store.journal import Journal
 
     journal = Journal(sys.argv[1], synchronous=sys.argv[2])
     ranges = [1.0 + 0.001 * i for i in range(360)]

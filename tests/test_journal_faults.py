@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from server_helpers import ServerProcess, scan_body, small_settings
 
-from mapserver import journal as journal_module
 from mapserver.api.metrics import ServerMetrics
-from mapserver.journal import (
+from mapserver.core.scan import Scan
+from mapserver.service.map_service import LOCK_FILE, DataDirError, MapService
+from mapserver.store import journal as journal_module
+from mapserver.store.journal import (
     SCHEMA_VERSION,
     Journal,
     JournalError,
@@ -29,8 +31,6 @@ from mapserver.journal import (
     record_checksum,
     snapshot_checksum,
 )
-from mapserver.scan import Scan
-from mapserver.service import LOCK_FILE, DataDirError, MapService
 from scenarios.cli import main
 
 N_SCANS = 12
@@ -234,7 +234,7 @@ def test_restart_quarantines_exactly_the_damaged_record(tmp_path, caplog, damage
     serve_and_close(data, scans)
     damage_fn, reason = DAMAGES[damage]
     original = damage_fn(data, 5)
-    with caplog.at_level(logging.ERROR, logger="mapserver.service"):
+    with caplog.at_level(logging.ERROR, logger="mapserver.service.map_service"):
         service = MapService(small_settings(data))
     try:
         assert service.journal.quarantined == 1
@@ -305,7 +305,7 @@ def test_a_bad_newest_snapshot_falls_back_to_the_older_one(tmp_path, caplog, dam
     scans = bodies()
     serve_and_close(data, scans, snapshot_at=(4, 8))
     SNAPSHOT_DAMAGES[damage](data, 8)
-    with caplog.at_level(logging.ERROR, logger="mapserver.service"):
+    with caplog.at_level(logging.ERROR, logger="mapserver.service.map_service"):
         assert assert_restart_rebuilds(data, scans).version == N_SCANS
     messages = " ".join(r.getMessage() for r in caplog.records)
     assert "snapshot at seq 8 is unusable" in messages
@@ -318,7 +318,7 @@ def test_with_every_snapshot_bad_start_up_replays_the_whole_journal(tmp_path, ca
     serve_and_close(data, scans, snapshot_at=(4, 8))
     _flip_snapshot(data, 4)
     SNAPSHOT_DAMAGES["wrong shape"](data, 8)
-    with caplog.at_level(logging.ERROR, logger="mapserver.service"):
+    with caplog.at_level(logging.ERROR, logger="mapserver.service.map_service"):
         assert_restart_rebuilds(data, scans)
     assert "replaying the whole journal" in caplog.text
 

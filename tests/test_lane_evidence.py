@@ -8,7 +8,7 @@ import numpy as np
 from lane_helpers import Drive, FakeMap
 
 from mapserver.client import CellInfo
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 from planner.coordinator import LaneCoordinator
 from planner.freeze import FreezeDetector, LaneBlock, UnitObservation
 from planner.lane_graph import LaneGraph

@@ -10,7 +10,7 @@ import pytest
 from matplotlib.figure import Figure
 from mcap.reader import make_reader
 
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 from scenarios import runner
 from scenarios.map_truth import KEYS, footprints, measure, reachable_floor, summary
 from scenarios.map_truth_channel import MAP_TRUTH_TOPIC, SCHEMA

@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from mapserver.geometry import GridGeometry
-from mapserver.mapfiles import MapFileError, MapMode, read_ros_map, write_ros_map
+from mapserver.core.geometry import GridGeometry
+from mapserver.store.mapfiles import MapFileError, MapMode, read_ros_map, write_ros_map
 
 GOOD_YAML = {
     "image": "map.pgm",

@@ -15,7 +15,7 @@ from fleet.shapes import Box
 from fleet.sim import FleetSim, UnitSpec
 from fleet.world import World
 from mapserver.client import MapClient
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 from planner.grid_search import GridPlanner
 from planner.navigator import UnitNavigator
 

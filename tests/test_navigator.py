@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from mapserver.costvalues import LETHAL
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import LETHAL
+from mapserver.core.geometry import GridGeometry
 from planner.grid_search import GridPlanner
 from planner.navigator import RecoveryConfig, UnitNavigator
 

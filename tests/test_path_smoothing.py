@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
 from planner.grid_search import GridPlanner
 from planner.path_smoothing import smooth_path
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from conftest import make_scan
 
-from mapserver.belief import BeliefGrid
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.queries import query_cells, query_segments
-from mapserver.sensor_model import SensorModel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.queries import query_cells, query_segments
+from mapserver.core.sensor_model import SensorModel
 
 GEOMETRY = GridGeometry(20, 10, 1.0)
 

@@ -17,10 +17,10 @@ from mcap.reader import make_reader
 from fleet.layout import Kind, Obstacle
 from fleet.shapes import Cylinder
 from fleet.world import World
-from mapserver.occupancy import occupancy_percent
-from mapserver.offline import fuse_all
-from mapserver.replay import belief_for, journal_scans, read_settings
-from mapserver.scan import PoseStd, Scan
+from mapserver.core.occupancy import occupancy_percent
+from mapserver.core.scan import PoseStd, Scan
+from mapserver.service.replay import belief_for, journal_scans, read_settings
+from mapserver.store.offline import fuse_all
 from scenarios import runner
 from scenarios.cli import main
 from scenarios.embedded_server import EmbeddedServer

@@ -15,9 +15,9 @@ from mcap.reader import make_reader
 from PIL import Image
 
 from fleet.sim import CollisionEvent
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
 from scenarios.collisions_json import collision_counts, write_collisions
 from scenarios.foxglove_messages import decode_ranges, encode_ranges
 from scenarios.foxglove_schemas import SCHEMAS

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mapserver.scan import (
+from mapserver.core.scan import (
     BEAM_INVALID,
     BEAM_NO_RETURN,
     BEAM_RETURN,
@@ -16,7 +16,7 @@ from mapserver.scan import (
     ScanError,
     classify_ranges,
 )
-from mapserver.scanfile import ScanFileError, parse_scan_lines
+from mapserver.store.scanfile import ScanFileError, parse_scan_lines
 
 
 def valid() -> dict:

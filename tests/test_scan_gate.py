@@ -3,10 +3,10 @@ is abandoned (its journal write failed) or committed."""
 
 from server_helpers import scan_body
 
-from mapserver.fleet_clock import FleetClock
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
-from mapserver.scan_gate import Ack, IngestError, ScanGate
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.scan_gate import Ack, IngestError, ScanGate
 
 
 def scan(stamp, unit="u1", **fields):

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from fleet.layout import Kind
 from fleet.world import World
-from mapserver.sensor_model import Policy
+from mapserver.core.sensor_model import Policy
 from scenarios.spec import (
     TOP_KEYS,
     BreakdownEvent,

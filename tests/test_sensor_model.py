@@ -2,7 +2,7 @@ import math
 
 import pytest
 
-from mapserver.sensor_model import DecayParams, Policy, SensorModel, logit, sigmoid
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel, logit, sigmoid
 
 
 def test_defaults_are_the_contract_values_in_log_odds():

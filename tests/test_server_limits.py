@@ -13,7 +13,7 @@ import yaml
 from server_helpers import ServerProcess
 
 from mapserver.api.http_protocol import MIN_IDLE_S
-from mapserver.lograte import RateLimitFilter
+from mapserver.service.lograte import RateLimitFilter
 
 LIMITS = {
     "keep_alive_s": 1.0,

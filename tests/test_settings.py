@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import yaml
 
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams
-from mapserver.mapfiles import write_ros_map
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
-from mapserver.settings import (
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.service.settings import (
     Role,
     Settings,
     SettingsError,
     is_loopback,
     load_settings,
 )
+from mapserver.store.mapfiles import write_ros_map
 
 
 @pytest.fixture(autouse=True)
@@ -310,7 +310,7 @@ def test_bad_no_return_settings_name_the_field() -> None:
 def test_a_data_dir_from_before_no_return_evidence_opens_only_under_its_own_rule(tmp_path) -> None:
     """Its map-settings.json lacks the new fields: it was fused with no-return beams at
     p_miss out to range_max, which is what it is read as."""
-    from mapserver.service import (
+    from mapserver.service.map_service import (
         MAP_SETTINGS_FILE,
         DataDirError,
         _check_map_settings,
@@ -335,7 +335,7 @@ def test_a_data_dir_from_before_no_return_evidence_opens_only_under_its_own_rule
 
 def test_a_data_dir_from_before_the_fill_between_beams_opens_only_without_it(tmp_path) -> None:
     """Its map-settings.json lacks ``fill_between_beams``: it was fused beams only."""
-    from mapserver.service import (
+    from mapserver.service.map_service import (
         MAP_SETTINGS_FILE,
         DataDirError,
         _check_map_settings,

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from fleet.unit import DriveLimits
-from mapserver.geometry import GridGeometry
+from mapserver.core.geometry import GridGeometry
 from planner.lane_graph import LaneGraph
 from planner.navigator import Command
 from scenarios.agents import AgentState

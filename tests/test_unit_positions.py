@@ -11,7 +11,7 @@ from server_helpers import JSON, small_settings
 from mapserver.api.app import create_app
 from mapserver.api.unit_board import UnitBoard, UnitBoardError
 from mapserver.client import Forbidden, InvalidRequest, MapClient, UnitState
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
 TOKENS = [

@@ -7,7 +7,7 @@ from fastapi.testclient import TestClient
 from server_helpers import scan_body, small_settings
 
 from mapserver.api.app import create_app
-from mapserver.settings import SettingsError, load_settings
+from mapserver.service.settings import SettingsError, load_settings
 
 U1, DOCK, ADMIN = "u1-secret", "dock-secret", "admin-secret"
 TOKENS = [

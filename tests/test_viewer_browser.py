@@ -17,8 +17,8 @@ from server_helpers import ServerProcess, scan_body
 
 from mapserver.api.render import cost_palette, occupancy_palette
 from mapserver.client import MapClient, UnitState
-from mapserver.costvalues import FREE, LETHAL, UNKNOWN
-from mapserver.scan import Pose2D
+from mapserver.core.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.core.scan import Pose2D
 
 UNIT, READER = "unit-token", "reader-token"
 LETHAL_CELL = (80, 50)  # (col, row): where scan_body's beams from (5, 5) end, at x = 8.05

@@ -18,7 +18,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from mapserver.client import Grid, MapClient
-from mapserver.costvalues import INSCRIBED
+from mapserver.core.costvalues import INSCRIBED
 
 
 def plan(costs: Grid, start: tuple[float, float], goal: tuple[float, float]) -> list:

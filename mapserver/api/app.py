@@ -8,7 +8,7 @@ live viewer at ``/``. Every error reply is ``{"detail": "<field>: <problem>, got
 from __future__ import annotations
 
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -31,6 +31,7 @@ from mapserver.api.admission import Admission
 from mapserver.api.body import quote
 from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
 from mapserver.api.metrics import ServerMetrics, method_label
+from mapserver.api.planning import CostmapPlanner, GridPlanning
 from mapserver.api.schemas import (
     CellsIn,
     ErrorOut,
@@ -41,12 +42,20 @@ from mapserver.api.schemas import (
     UnitsIn,
 )
 from mapserver.api.unit_board import UnitBoard
-from mapserver.service import MapService
-from mapserver.settings import Settings
+from mapserver.core.geometry import GridGeometry
+from mapserver.service.map_service import MapService
+from mapserver.service.settings import Settings
+from planner.grid_search import GridPlanner
 
 
-def create_app(settings: Settings, service: MapService | None = None) -> FastAPI:
-    """The app for ``settings``; ``service`` defaults to a new MapService on its data dir."""
+def create_app(
+    settings: Settings,
+    service: MapService | None = None,
+    planner_factory: Callable[[GridGeometry], GridPlanning] = GridPlanner,
+) -> FastAPI:
+    """The app for ``settings``; ``service`` defaults to a new MapService on its data dir;
+    ``POST /v1/plan`` plans with ``planner_factory(geometry)`` (the grid A* / Dijkstra of
+    ``planner.grid_search`` by default)."""
     service = service or MapService(settings)
 
     @asynccontextmanager
@@ -64,6 +73,7 @@ def create_app(settings: Settings, service: MapService | None = None) -> FastAPI
     )
     app.state.settings = settings
     app.state.service = service
+    app.state.planner = CostmapPlanner(service, planner_factory)
     app.state.metrics = ServerMetrics(service)
     app.state.tokens = settings.token_table()
     app.state.units = UnitBoard()

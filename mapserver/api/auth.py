@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 from fastapi import HTTPException, Request
 
-from mapserver.settings import Role, Settings, TokenSettings
+from mapserver.service.settings import Role, Settings, TokenSettings
 
 WRITE = "write"
 READ = "read"

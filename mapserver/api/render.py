@@ -11,9 +11,9 @@ from fastapi import Response
 from fastapi.responses import JSONResponse
 from PIL import Image
 
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.service import GridRead
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.service.map_service import GridRead
 
 
 def raw_headers(read: GridRead, geometry: GridGeometry) -> dict[str, str]:

@@ -30,11 +30,11 @@ logger = logging.getLogger(__name__)
 )
 async def plan(request: Request) -> Response:
     """Plan from start to goal on the costmap of one version (NavFn cell weights)."""
-    service = request.app.state.service
+    planner = request.app.state.planner
 
     def respond(query: PlanIn) -> dict[str, Any]:
         try:
-            result, version = service.plan(
+            result, version = planner.plan(
                 query.start, query.goal, query.algorithm, query.allow_unknown
             )
         except PlanRequestError as exc:

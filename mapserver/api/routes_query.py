@@ -20,7 +20,7 @@ from mapserver.api.admission import Admission
 from mapserver.api.auth import READ, require
 from mapserver.api.body import body_schema
 from mapserver.api.schemas import CellsIn, CellsOut, ErrorOut, SegmentsIn, SegmentsOut
-from mapserver.queries import CELL_FIELDS
+from mapserver.core.queries import CELL_FIELDS
 
 router = APIRouter(tags=["query"], dependencies=[Depends(require(READ))])
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 413, 415, 422, 429)}

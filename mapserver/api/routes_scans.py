@@ -10,9 +10,9 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, quote, read_json
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
-from mapserver.scan import Scan, ScanError
-from mapserver.scan_gate import IngestError
-from mapserver.service import MapService
+from mapserver.core.scan import Scan, ScanError
+from mapserver.service.map_service import MapService
+from mapserver.service.scan_gate import IngestError
 
 router = APIRouter(tags=["scans"])
 

@@ -59,10 +59,10 @@ from fleet.layout import Kind, Layout, Obstacle  # noqa: E402
 from fleet.lidar import Lidar, LidarConfig  # noqa: E402
 from fleet.shapes import Box  # noqa: E402
 from fleet.world import World  # noqa: E402
-from mapserver.costvalues import INSCRIBED, LETHAL  # noqa: E402
-from mapserver.scan import Pose2D, Scan  # noqa: E402
-from mapserver.service import MapService  # noqa: E402
-from mapserver.settings import load_settings  # noqa: E402
+from mapserver.core.costvalues import INSCRIBED, LETHAL  # noqa: E402
+from mapserver.core.scan import Pose2D, Scan  # noqa: E402
+from mapserver.service.map_service import MapService  # noqa: E402
+from mapserver.service.settings import load_settings  # noqa: E402
 
 FLOOR = (40.0, 16.0)  # [m]
 POD = (20.0, 8.0, 1.2)  # centre x, y and side [m]

@@ -38,7 +38,7 @@ import numpy as np
 
 from fleet.boxworld import warehouse_layout
 from mapserver.client import SegmentInfo
-from mapserver.costvalues import LETHAL
+from mapserver.core.costvalues import LETHAL
 from planner.coordinator import LaneCoordinator
 from planner.lane_graph import Lane, LaneGraph
 

@@ -25,12 +25,12 @@ import numpy as np
 from scipy import ndimage
 
 from fleet.boxworld import sample_scans, warehouse_layout
-from mapserver.belief import BeliefGrid, CellState
-from mapserver.costmap import LayeredCostmap
-from mapserver.costvalues import LETHAL, UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams, Inflator, merge_inflation
-from mapserver.layers import InflationLayer, ObstacleLayer
+from mapserver.core.belief import BeliefGrid, CellState
+from mapserver.core.costvalues import LETHAL, UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams, Inflator, merge_inflation
+from mapserver.costmap.layered import LayeredCostmap
+from mapserver.costmap.layers import InflationLayer, ObstacleLayer
 
 RESOLUTION = 0.05  # [m/cell]
 SIDE_M = 100.0  # [m]

@@ -39,7 +39,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL  # noqa: E402
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL  # noqa: E402
 from scenarios.runner import run  # noqa: E402
 from scenarios.spec import load_scenario  # noqa: E402
 

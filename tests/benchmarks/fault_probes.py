@@ -68,7 +68,7 @@ from typing import Any  # noqa: E402
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mapserver.service import LOCK_FILE  # noqa: E402
+from mapserver.service.map_service import LOCK_FILE  # noqa: E402
 from tests.benchmarks.server_process import LoggedServer  # noqa: E402
 from tests.server_helpers import scan_body  # noqa: E402
 

@@ -43,10 +43,10 @@ import numpy as np
 import pyoctomap
 
 from fleet.boxworld import sample_scans, warehouse_layout
-from mapserver.belief import BeliefGrid, CellState
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
-from mapserver.sensor_model import DecayParams, Policy, SensorModel, sigmoid
+from mapserver.core.belief import BeliefGrid, CellState
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel, sigmoid
 
 RESOLUTION = 0.05  # [m] cell / voxel edge
 WIDTH_M, HEIGHT_M = 100.0, 50.0  # [m] warehouse floor = grid extent

@@ -21,9 +21,9 @@ import networkx as nx
 import numpy as np
 from inflation import warehouse
 
-from mapserver.costvalues import LETHAL
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams, Inflator
+from mapserver.core.costvalues import LETHAL
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams, Inflator
 from planner.grid_reference import networkx_grid
 from planner.grid_search import GridPlanner
 

@@ -31,8 +31,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy import ndimage
 
-from mapserver.belief import CellBox
-from mapserver.inflation import InflationParams, Inflator
+from mapserver.core.belief import CellBox
+from mapserver.core.inflation import InflationParams, Inflator
 
 RESOLUTION = 0.05  # [m/cell]
 SIDE = 2000  # [cells] = 100 m

@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from mapserver.journal import Journal, journal_path
+from mapserver.store.journal import Journal, journal_path
 from scenarios.embedded_server import EmbeddedServer, free_port
 
 ROOT = Path(__file__).resolve().parents[2]

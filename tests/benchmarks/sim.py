@@ -53,7 +53,7 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, UnitSpec
 from fleet.world import RAY_BATCH_MAX, World
 from mapserver.client import MapClient
-from mapserver.scan import Pose2D
+from mapserver.core.scan import Pose2D
 
 DT = 0.1  # [s] one step, one scan per unit at 10 Hz
 SPACING_M = 4.0  # [m] between neighbouring units on a lane

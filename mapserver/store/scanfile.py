@@ -10,7 +10,7 @@ import json
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from mapserver.scan import DEFAULT_MAX_BEAMS, Scan, ScanError
+from mapserver.core.scan import DEFAULT_MAX_BEAMS, Scan, ScanError
 
 
 class ScanFileError(ValueError):

@@ -57,13 +57,13 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from mapserver.belief import BeliefGrid
-from mapserver.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCANS
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams
-from mapserver.mapfiles import MapFileError, RosMap, read_ros_map
-from mapserver.scan import DEFAULT_MAX_BEAMS
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams
+from mapserver.core.scan import DEFAULT_MAX_BEAMS
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.service.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCANS
+from mapserver.store.mapfiles import MapFileError, RosMap, read_ros_map
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8700
@@ -261,7 +261,7 @@ class LimitsSettings(_Section):
 
 
 class ClockSettings(_Section):
-    """The fleet's clock (``mapserver.fleet_clock``): no single unit decides the map's time.
+    """The fleet's clock (``mapserver.service.fleet_clock``): no single unit decides the map's time.
 
     max_lead_s: [s] how far a scan's stamp may lead the server's wall clock and the
         median of the fleet's latest stamps; a scan leading further is refused (422).
@@ -331,7 +331,7 @@ class JournalSettings(_Section):
     """Durability and history.
 
     synchronous: SQLite's ``FULL`` (acknowledged scans survive power loss), ``NORMAL``
-        or ``OFF`` (they survive a process crash only); ``mapserver.journal`` explains.
+        or ``OFF`` (they survive a process crash only); ``mapserver.store.journal`` explains.
     snapshot_every_scans, snapshot_every_seconds [s]: snapshot the grid after this many
         scans or this long since the last snapshot, whichever comes first.
     keep_snapshots: how many snapshots the journal keeps.

@@ -10,9 +10,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mapserver.belief import BeliefGrid
-from mapserver.scan import Scan
-from mapserver.settings import Settings, SettingsError, load_settings
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.scan import Scan
+from mapserver.service.settings import Settings, SettingsError, load_settings
 
 
 def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
@@ -50,8 +50,8 @@ def run_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from mapserver.api.app import create_app
-    from mapserver.journal import JournalError
-    from mapserver.service import DataDirError
+    from mapserver.service.map_service import DataDirError
+    from mapserver.store.journal import JournalError
 
     overrides = {
         "host": args.host,
@@ -83,8 +83,8 @@ def uvicorn_config(app: Any, settings: Settings) -> Any:
     connections), logging at WARNING through a RateLimitFilter on every handler."""
     import uvicorn
 
-    from mapserver import lograte
     from mapserver.api.http_protocol import with_head_timeout
+    from mapserver.service import lograte
 
     server = settings.server
     config = uvicorn.Config(
@@ -107,7 +107,7 @@ def uvicorn_config(app: Any, settings: Settings) -> Any:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    from mapserver.replay import ReplayError, replay_journal
+    from mapserver.service.replay import ReplayError, replay_journal
 
     try:
         belief, scans, skipped = replay_journal(args.source, until=args.until)
@@ -126,7 +126,7 @@ def run_replay(args: argparse.Namespace) -> int:
 def write_replayed(belief: BeliefGrid, scans: list[Scan], args: argparse.Namespace) -> int:
     """Fuse replayed ``scans`` into ``belief``, write the map files to ``args.out`` and
     report (``args.json``: the figures as JSON); the tail of every ``fleetmap replay``."""
-    from mapserver.offline import fuse_all, write_map_outputs
+    from mapserver.store.offline import fuse_all, write_map_outputs
 
     stats = fuse_all(belief, scans)
     yaml_path = write_map_outputs(belief, args.out)

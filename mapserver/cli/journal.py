@@ -8,13 +8,13 @@
   with its original seq, into a fresh journal in NEW_DIR (default ``DATA_DIR-salvaged``)
   with ``map-settings.json``; damaged records that still read go to NEW_DIR's quarantine,
   quarantined ones stay quarantined. Works on a truncated or partly corrupt file
-  (``mapserver.journal_rows``). Snapshots are not copied: the next start-up replays the
+  (``mapserver.store.journal_rows``). Snapshots are not copied: the next start-up replays the
   whole journal. Exit 0 when nothing was lost or damaged, 1 otherwise.
 - ``drop DATA_DIR --unit U --after STAMP``: moves the unit's scans with stamp > STAMP to
   quarantine ("dropped by admin"), sets the unit's stamp bound to its largest remaining
   stamp and deletes the snapshots, so the next start-up rebuilds the map from the journal.
 
-Each takes a lock on the journal file (``mapserver.datadir_lock``: shared for check and
+Each takes a lock on the journal file (``mapserver.store.datadir_lock``: shared for check and
 salvage, exclusive for drop) and refuses to run while a server holds the data dir.
 """
 
@@ -31,8 +31,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mapserver.datadir_lock import FileLocks, LockBusy
-from mapserver.journal import (
+from mapserver.core.scan import Scan, ScanError
+from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
+from mapserver.store.datadir_lock import FileLocks, LockBusy
+from mapserver.store.journal import (
     Journal,
     JournalError,
     RawRow,
@@ -40,10 +42,8 @@ from mapserver.journal import (
     decode_row,
     journal_path,
 )
-from mapserver.journal_rows import RowReader, Unreadable, readable_copy, seq_ranges
-from mapserver.scan import Scan, ScanError
-from mapserver.service import MAP_SETTINGS_FILE, read_map_settings
-from mapserver.snapshot_state import snapshot_problem
+from mapserver.store.journal_rows import RowReader, Unreadable, readable_copy, seq_ranges
+from mapserver.store.snapshot_state import snapshot_problem
 
 DROP_REASON = "dropped by admin"
 IMPORT_BATCH = 512  # rows per transaction of a salvage

@@ -3,7 +3,7 @@
 Every layer answers two questions, in the configured order (as Nav2's
 ``costmap_2d::Layer``): ``update_bounds`` grows the region that must be recomputed, and
 ``update_costs`` writes its costs into the master grid inside that region only. Layers
-never see each other; ``LayeredCostmap`` (``mapserver.costmap``) drives them.
+never see each other; ``LayeredCostmap`` (``mapserver.costmap.layered``) drives them.
 
 - ``StaticLayer``: a map file (walls, racks that never move), written over the region.
 - ``ObstacleLayer``: the belief grid by its thresholds, combined as Nav2's
@@ -11,7 +11,7 @@ never see each other; ``LayeredCostmap`` (``mapserver.costmap``) drives them.
   known master cell, a known one overwrites an UNKNOWN master cell, otherwise the max
   (``obstacle_kernel``).
   Under the ``decay`` policy it reports, per tile, when its costs next change.
-- ``InflationLayer``: Nav2's inflation of LETHAL cells (``mapserver.inflation``).
+- ``InflationLayer``: Nav2's inflation of LETHAL cells (``mapserver.core.inflation``).
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ from typing import Protocol
 
 import numpy as np
 
-from mapserver.belief import BeliefGrid, CellBox
-from mapserver.costvalues import FREE, LETHAL, UNKNOWN
-from mapserver.fusion_kernel import FADE_CACHE_SIZE
-from mapserver.geometry import GridGeometry
-from mapserver.inflation import InflationParams, Inflator
-from mapserver.mapfiles import RosMap
-from mapserver.obstacle_kernel import classify_window
+from mapserver.core.belief import BeliefGrid, CellBox
+from mapserver.core.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.core.fusion_kernel import FADE_CACHE_SIZE
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.inflation import InflationParams, Inflator
+from mapserver.core.obstacle_kernel import classify_window
+from mapserver.store.mapfiles import RosMap
 
 
 class Layer(Protocol):
@@ -184,7 +184,7 @@ class ObstacleLayer:
 
 
 class InflationLayer:
-    """Nav2 inflation of the master grid's LETHAL cells (``mapserver.inflation``)."""
+    """Nav2 inflation of the master grid's LETHAL cells (``mapserver.core.inflation``)."""
 
     name = "inflation"
 

@@ -20,10 +20,10 @@ from enum import IntEnum
 
 import numpy as np
 
-from mapserver import fusion_kernel as kernel
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
-from mapserver.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
+from mapserver.core import fusion_kernel as kernel
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
 
 
 class CellState(IntEnum):

@@ -17,29 +17,14 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from mapserver.belief import EMPTY_BOX, CellBox
-from mapserver.costvalues import UNKNOWN
-from mapserver.geometry import GridGeometry
-from mapserver.layers import Layer
-
-
-@dataclass(frozen=True)
-class Patch:
-    """Costs of the box (x0, y0) .. (x0 + width - 1, y0 + height - 1) [cells], row-major."""
-
-    x0: int
-    y0: int
-    width: int
-    height: int
-    data: np.ndarray  # uint8 (height, width)
-
-    def apply_to(self, costs: np.ndarray) -> None:
-        """Write this patch into a (H, W) cost array in place."""
-        costs[self.y0 : self.y0 + self.height, self.x0 : self.x0 + self.width] = self.data
+from mapserver.core.belief import EMPTY_BOX, CellBox
+from mapserver.core.costvalues import UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.patch import Patch
+from mapserver.costmap.layers import Layer
 
 
 def changed_box(old: np.ndarray, new: np.ndarray, region: CellBox) -> CellBox:

@@ -13,14 +13,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mapserver.belief import BeliefGrid
-from mapserver.fleet_clock import FleetClock
-from mapserver.geometry import GridGeometry
-from mapserver.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
-from mapserver.journal_reading import ReadRecord, read_records
-from mapserver.scan import Scan
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
-from mapserver.service import MAP_SETTINGS_FILE, read_map_settings
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
+from mapserver.store.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
+from mapserver.store.journal_reading import ReadRecord, read_records
 
 
 class ReplayError(ValueError):
@@ -51,7 +51,7 @@ def replay_journal(
 
 def read_settings(data_dir: Path) -> dict[str, Any]:
     """The map settings a server recorded in ``data_dir`` (``MAP_SETTINGS_FILE``, read
-    as ``mapserver.service.read_map_settings`` does: an old dir's missing no-return
+    as ``mapserver.service.map_service.read_map_settings`` does: an old dir's missing no-return
     fields filled with the rule it was fused under); ReplayError when missing or not JSON."""
     path = Path(data_dir) / MAP_SETTINGS_FILE
     try:

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mapserver.belief import BeliefGrid
-from mapserver.mapfiles import write_ros_map
-from mapserver.occupancy import trinary_occupancy
-from mapserver.scan import Scan
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.occupancy import trinary_occupancy
+from mapserver.core.scan import Scan
+from mapserver.store.mapfiles import write_ros_map
 
 MAP_FILES = ("map.yaml", "map.pgm", "logodds.npy")
 

@@ -37,26 +37,26 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.belief import BeliefGrid
-from mapserver.costmap import LayeredCostmap, Patch
-from mapserver.datadir_lock import FileLocks, LockBusy
-from mapserver.fleet_clock import FleetClock
-from mapserver.journal import Journal, JournalError, journal_path
-from mapserver.journal_reading import read_records
-from mapserver.layers import InflationLayer, ObstacleLayer, StaticLayer
-from mapserver.occupancy import occupancy_percent
-from mapserver.queries import (
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.occupancy import occupancy_percent
+from mapserver.core.patch import Patch
+from mapserver.core.queries import (
     CellSamples,
     SegmentReport,
     cell_columns,
     query_segments,
     sample_cells,
 )
-from mapserver.scan import Scan
-from mapserver.scan_gate import Ack, IngestError, ScanGate, UnitLatest
-from mapserver.settings import Settings
-from mapserver.snapshot_state import load_snapshot_into
-from planner.grid_search import GridPlanner, PlanResult
+from mapserver.core.scan import Scan
+from mapserver.costmap.layered import LayeredCostmap
+from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
+from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.scan_gate import Ack, IngestError, ScanGate, UnitLatest
+from mapserver.service.settings import Settings
+from mapserver.store.datadir_lock import FileLocks, LockBusy
+from mapserver.store.journal import Journal, JournalError, journal_path
+from mapserver.store.journal_reading import read_records
+from mapserver.store.snapshot_state import load_snapshot_into
 
 logger = logging.getLogger(__name__)
 
@@ -127,8 +127,6 @@ class MapService:
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
         self._snapshotter: threading.Thread | None = None
-        self._planner: GridPlanner | None = None  # created on the first plan
-        self._planner_lock = threading.Lock()
         self.fusion_seconds = 0.0  # [s] total, for metrics
         self._closed = False
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
@@ -394,23 +392,6 @@ class MapService:
             costs = self.costmap.costs.copy()
         return query_segments(self.geometry, costs, segments)
 
-    def plan(
-        self,
-        start: tuple[float, float],
-        goal: tuple[float, float],
-        algorithm: str = "astar",
-        allow_unknown: bool = True,
-    ) -> tuple[PlanResult, int]:
-        """A plan on the current costmap and that costmap's version (one planner at a
-        time: its search buffers are the grid's size)."""
-        read = self.costmap_read()
-        with self._planner_lock:
-            if self._planner is None:
-                self._planner = GridPlanner(self.geometry)
-            return self._planner.plan(
-                read.data, start, goal, algorithm, allow_unknown
-            ), read.version
-
     def journal_bytes(self) -> int:
         return self.journal.size_bytes()
 
@@ -494,7 +475,7 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
 def _lock_data_dir(data_dir: Path) -> FileLocks:
     """An exclusive lock on the data dir for this process's lifetime (one writer): on
     ``server.lock`` and on the journal file itself, so deleting ``server.lock`` does not
-    let a second server in (``mapserver.datadir_lock``)."""
+    let a second server in (``mapserver.store.datadir_lock``)."""
     try:
         return FileLocks([data_dir / LOCK_FILE, journal_path(data_dir)])
     except LockBusy as exc:

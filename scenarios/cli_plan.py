@@ -13,11 +13,11 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from mapserver.cli_map import xy_pair
-from mapserver.costmap import LayeredCostmap
-from mapserver.inflation import InflationParams
-from mapserver.layers import InflationLayer, StaticLayer
-from mapserver.mapfiles import MapFileError, read_ros_map
+from mapserver.cli.map_build import xy_pair
+from mapserver.core.inflation import InflationParams
+from mapserver.costmap.layered import LayeredCostmap
+from mapserver.costmap.layers import InflationLayer, StaticLayer
+from mapserver.store.mapfiles import MapFileError, read_ros_map
 from planner.grid_search import ALGORITHMS, GridPlanner, PlanRequestError
 
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapserver.belief import BeliefGrid
-from mapserver.journal import Snapshot
+from mapserver.core.belief import BeliefGrid
+from mapserver.store.journal import Snapshot
 
 GRID_ARRAYS = ("log_odds", "last_observed")
 

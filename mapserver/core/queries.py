@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mapserver.belief import BeliefGrid, CellSample, CellState
-from mapserver.costvalues import INSCRIBED, UNKNOWN
-from mapserver.fusion_kernel import cell_of, clip_segment
-from mapserver.geometry import GridGeometry
+from mapserver.core.belief import BeliefGrid, CellSample, CellState
+from mapserver.core.costvalues import INSCRIBED, UNKNOWN
+from mapserver.core.fusion_kernel import cell_of, clip_segment
+from mapserver.core.geometry import GridGeometry
 
 STATE_NAMES = {CellState.FREE: "free", CellState.OCCUPIED: "occupied", CellState.UNKNOWN: "unknown"}
 

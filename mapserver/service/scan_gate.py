@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from mapserver.fleet_clock import FleetClock
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Scan
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Scan
+from mapserver.service.fleet_clock import FleetClock
 
 
 class IngestError(Exception):

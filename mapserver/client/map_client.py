@@ -69,9 +69,9 @@ import httpx
 import numpy as np
 import orjson
 
-from mapserver.costmap import Patch
-from mapserver.geometry import GridGeometry
-from mapserver.scan import Pose2D, Scan
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.patch import Patch
+from mapserver.core.scan import Pose2D, Scan
 
 # ---------------------------------------------------------------------------- errors
 

@@ -7,11 +7,11 @@ import json
 import sys
 from pathlib import Path
 
-from mapserver.belief import BeliefGrid
-from mapserver.geometry import GridGeometry
-from mapserver.offline import fuse_all, write_map_outputs
-from mapserver.scanfile import ScanFileError, read_scan_file
-from mapserver.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.store.offline import fuse_all, write_map_outputs
+from mapserver.store.scanfile import ScanFileError, read_scan_file
 
 
 def xy_pair(text: str) -> tuple[float, float]:

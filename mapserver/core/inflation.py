@@ -63,8 +63,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mapserver.belief import EMPTY_BOX, CellBox
-from mapserver.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.belief import EMPTY_BOX, CellBox
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 
 DISTANCE_TOLERANCE = 1e-9  # [m] slack when comparing a distance with a radius
 MAX_RADIUS_CELLS = 1000  # [cells] bounds the cost table (about R**2 entries) and int16 passes

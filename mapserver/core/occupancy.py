@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapserver.belief import CellState
-from mapserver.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
+from mapserver.core.belief import CellState
+from mapserver.core.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
 
 
 def occupancy_percent(probability: np.ndarray) -> np.ndarray:

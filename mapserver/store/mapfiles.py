@@ -47,9 +47,9 @@ import numpy as np
 import yaml
 from PIL import Image
 
-from mapserver.atomic import atomic_output
-from mapserver.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
-from mapserver.geometry import GridGeometry
+from mapserver.core.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
+from mapserver.core.geometry import GridGeometry
+from mapserver.store.atomic import atomic_output
 
 # Trinary image shades (map_saver's, read back by the thresholds below)
 PIXEL_FREE = 254

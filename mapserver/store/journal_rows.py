@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from mapserver.journal import RawRow
+from mapserver.store.journal import RawRow
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
 CHUNK = 256  # seqs read per range query

@@ -8,9 +8,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from mapserver.fleet_clock import FleetClock
-from mapserver.journal import Journal, RecordError
-from mapserver.scan import DEFAULT_MAX_BEAMS, Scan, ScanError
+from mapserver.core.scan import DEFAULT_MAX_BEAMS, Scan, ScanError
+from mapserver.service.fleet_clock import FleetClock
+from mapserver.store.journal import Journal, RecordError
 
 
 @dataclass(frozen=True)

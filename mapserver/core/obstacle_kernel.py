@@ -19,8 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
-from mapserver.costvalues import FREE, LETHAL, UNKNOWN
-from mapserver.fusion_kernel import fade
+from mapserver.core.costvalues import FREE, LETHAL, UNKNOWN
+from mapserver.core.fusion_kernel import fade
 
 # A tile is revisited slightly before its computed crossing so float rounding can never
 # make it late; visiting early is harmless (the tile is reclassified, nothing changes).

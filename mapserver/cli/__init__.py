@@ -1,0 +1,2 @@
+"""The map server's commands (``fleetmap serve``, ``replay``, ``map build``,
+``journal``), registered by ``scenarios.cli``."""
