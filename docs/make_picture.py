@@ -1,7 +1,7 @@
 """Make ``docs/images/viewer.png``: the live viewer on a warehouse map, for the README.
 
 Starts ``fleetmap serve`` on a free loopback port with a temporary data dir
-(``scenarios.embedded_server``, the default 100 m x 50 m grid), posts the
+(``scenarios.run.embedded_server``, the default 100 m x 50 m grid), posts the
 scans of eight units patrolling the sample warehouse (``fleet.boxworld``), publishes the
 units with paths planned by the server (one unit, sent to a goal inside a rack, frozen),
 and screenshots the page with headless Chromium (Debian's ``chromium``).
@@ -22,7 +22,7 @@ import httpx
 
 from fleet.boxworld import sample_scans, warehouse_layout
 from mapserver.client import MapClient, UnitState
-from scenarios.embedded_server import EmbeddedServer
+from scenarios.run.embedded_server import EmbeddedServer
 
 HERE = Path(__file__).resolve().parent
 SIZE = (1400, 760)  # [px] window

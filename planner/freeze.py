@@ -52,7 +52,7 @@ class LaneBlock:
 
     origin: where its route would start: ``(node,)`` for a unit at a node with no route to
     its goal, ``(tail, head)`` the edge it is stranded on. goal: its goal node. lanes:
-    the blocked lanes that explain it (``scenarios.lane_evidence``); points: their first
+    the blocked lanes that explain it (``scenarios.score.lane_evidence``); points: their first
     blocked cells (x, y) [m], the cells' evidence is read for.
     """
 

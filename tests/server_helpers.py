@@ -7,7 +7,7 @@ from pathlib import Path
 import yaml
 
 from mapserver.service.settings import Settings, load_settings
-from scenarios.embedded_server import EmbeddedServer
+from scenarios.run.embedded_server import EmbeddedServer
 
 GRID = {"width": 200, "height": 100, "resolution": 0.1}  # 20 m x 10 m
 JSON = {"content-type": "application/json"}  # what every POST must declare
@@ -41,7 +41,7 @@ def scan_body(stamp: float = 1.0, unit: str = "u1", x: float = 5.0, y: float = 5
 
 
 class ServerProcess(EmbeddedServer):
-    """``fleetmap serve`` in a subprocess on 127.0.0.1 (``scenarios.embedded_server``);
+    """``fleetmap serve`` in a subprocess on 127.0.0.1 (``scenarios.run.embedded_server``);
     its grid is ``grid`` cells at 0.1 m (default 30 m x 20 m)."""
 
     def __init__(

@@ -11,7 +11,7 @@ import yaml
 from conftest import make_scan
 
 from mapserver.store.scanfile import write_scan_file
-from scenarios.cli import main
+from scenarios.cli.main import main
 
 ARGS = ["--width", "12", "--height", "3", "--resolution", "1.0", "--origin", "0,0"]
 
@@ -130,7 +130,7 @@ def test_a_missing_scan_file_is_a_clear_error(tmp_path, capsys):
 def test_the_console_command_runs_map_build(scan_file, tmp_path):
     out = tmp_path / "map"
     proc = subprocess.run(
-        [sys.executable, "-m", "scenarios.cli", "map", "build", str(scan_file), *ARGS,
+        [sys.executable, "-m", "scenarios.cli.main", "map", "build", str(scan_file), *ARGS,
          "--out", str(out), "--json"],
         capture_output=True, text=True, check=True,
     )  # fmt: skip

@@ -6,7 +6,7 @@ import numpy as np
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.store.mapfiles import write_ros_map
-from scenarios.cli import main
+from scenarios.cli.main import main
 
 
 def saved_map(tmp_path):

@@ -7,7 +7,7 @@ from fastapi.testclient import TestClient
 from server_helpers import scan_body, small_settings
 
 from mapserver.api.app import create_app
-from scenarios.cli import main
+from scenarios.cli.main import main
 
 
 def test_an_open_server_refuses_to_bind_beyond_loopback(tmp_path, capsys):

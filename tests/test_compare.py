@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 from scenario_helpers import TINY, tiny5
 
-import scenarios.sweep_run
-from scenarios.cli import main
-from scenarios.compare import parse_policies
-from scenarios.compare_stats import Summary, summarise, verdict
-from scenarios.compare_table import scenario_table
-from scenarios.metric_values import map_truth_names, metric_value
-from scenarios.sweep_run import RunResult
+import scenarios.sweep.parallel
+from scenarios.cli.main import main
+from scenarios.sweep.compare import parse_policies
+from scenarios.sweep.compare_stats import Summary, summarise, verdict
+from scenarios.sweep.compare_table import scenario_table
+from scenarios.sweep.metric_values import map_truth_names, metric_value
+from scenarios.sweep.parallel import RunResult
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -169,7 +169,7 @@ def test_a_failed_run_is_listed_and_exits_one(
             on_result(result)
         return results
 
-    monkeypatch.setattr(scenarios.sweep_run, "run_sweep", fake_run_sweep)
+    monkeypatch.setattr(scenarios.sweep.parallel, "run_sweep", fake_run_sweep)
     out = tmp_path / "out"
     assert (
         main(["compare", str(TINY), "--policies", "decay", "--seeds", "2", "--out", str(out)]) == 1

@@ -3,8 +3,8 @@
 import pytest
 from lane_helpers import grid_graph
 
-from scenarios.dispatch import Dispatcher
-from scenarios.tasks import Task
+from scenarios.run.dispatch import Dispatcher
+from scenarios.spec.tasks import Task
 
 
 def trip(task_id: str, release: float, pickup, unit: str | None = None) -> Task:

@@ -23,8 +23,8 @@ import pytest
 import yaml
 
 from mapserver.service.settings import SettingsError, load_settings
-from scenarios.cli import build_parser
-from scenarios.embedded_server import free_port
+from scenarios.cli.main import build_parser
+from scenarios.run.embedded_server import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKER = ROOT / "docker"
@@ -122,7 +122,7 @@ def test_the_image_command_serves_and_passes_its_own_healthcheck(tmp_path):
     assert [a for a in local if a.startswith("--")] == [a for a in argv if a.startswith("--")]
     port = str(free_port())
     env = dict(os.environ, FLEETMAP_PORT=port, FLEETMAP_TOKENS=tokens_env())
-    command = [sys.executable, "-m", "scenarios.cli", *local[1:]]
+    command = [sys.executable, "-m", "scenarios.cli.main", *local[1:]]
     server = subprocess.Popen(command, env=env, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
     try:
         healthy = _wait_healthy(env, server)

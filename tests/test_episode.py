@@ -7,9 +7,9 @@ import httpx
 import pytest
 
 from mapserver.client import MapClient
-from scenarios.embedded_server import EmbeddedServer
-from scenarios.episode import Episode, RunOptions
-from scenarios.spec import load_scenario
+from scenarios.run.embedded_server import EmbeddedServer
+from scenarios.run.episode import Episode, RunOptions
+from scenarios.spec.scenario import load_scenario
 
 STEPS = 80
 

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mapserver.core.scan import Pose2D, Scan
-from scenarios.fleet_filter import FleetMemberFilter
+from scenarios.run.fleet_filter import FleetMemberFilter
 
 MARGIN = 0.15
 

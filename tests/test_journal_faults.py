@@ -31,7 +31,7 @@ from mapserver.store.journal import (
     record_checksum,
     snapshot_checksum,
 )
-from scenarios.cli import main
+from scenarios.cli.main import main
 
 N_SCANS = 12
 

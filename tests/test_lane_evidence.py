@@ -12,10 +12,10 @@ from mapserver.core.geometry import GridGeometry
 from planner.coordinator import LaneCoordinator
 from planner.freeze import FreezeDetector, LaneBlock, UnitObservation
 from planner.lane_graph import LaneGraph
-from scenarios.evidence import freeze_records
-from scenarios.freezes_json import write_freezes
-from scenarios.lane_evidence import blocking_cut, lane_block, lane_blocking_points
-from scenarios.record import RunRecord
+from scenarios.run.record import RunRecord
+from scenarios.score.evidence import freeze_records
+from scenarios.score.freezes_json import write_freezes
+from scenarios.score.lane_evidence import blocking_cut, lane_block, lane_blocking_points
 
 #   p           a8 ---- a9        u1 at a, goal c. Blocked: b-c (two obstacles), a9-c,
 #   |           |       |         and a-p, the lane into a dead-end pocket. Every way to

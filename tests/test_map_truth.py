@@ -1,4 +1,4 @@
-"""The shared map against ground truth (scenarios.map_truth): exact counts on hand-made
+"""The shared map against ground truth (scenarios.score.map_truth): exact counts on hand-made
 maps, the reachable floor, the metrics of a short run, and the replay's and report's
 views of them."""
 
@@ -11,13 +11,13 @@ from matplotlib.figure import Figure
 from mcap.reader import make_reader
 
 from mapserver.core.geometry import GridGeometry
-from scenarios import runner
-from scenarios.map_truth import KEYS, footprints, measure, reachable_floor, summary
-from scenarios.map_truth_channel import MAP_TRUTH_TOPIC, SCHEMA
-from scenarios.record import MapTruthSample, RunRecord
-from scenarios.replay_mcap import write_replay
-from scenarios.report_map_truth import draw_map_truth
-from scenarios.spec import load_scenario
+from scenarios.replay.map_truth_channel import MAP_TRUTH_TOPIC, SCHEMA
+from scenarios.replay.mcap import write_replay
+from scenarios.run import runner
+from scenarios.run.record import MapTruthSample, RunRecord
+from scenarios.score.map_truth import KEYS, footprints, measure, reachable_floor, summary
+from scenarios.score.report_map_truth import draw_map_truth
+from scenarios.spec.scenario import load_scenario
 
 
 def costs(*rows: list[int]) -> np.ndarray:

@@ -10,7 +10,8 @@ from pathlib import Path
 from hypothesis import given
 from hypothesis import strategies as st
 
-from scenarios.pareto import (
+from scenarios.sweep.parallel import RunResult
+from scenarios.sweep.pareto import (
     dominates,
     non_dominated,
     pareto_settings,
@@ -18,8 +19,7 @@ from scenarios.pareto import (
     used_objectives,
     write_pareto,
 )
-from scenarios.sweep import Sweep, SweepRun
-from scenarios.sweep_run import RunResult
+from scenarios.sweep.sweep_file import Sweep, SweepRun
 
 HALF_LIFE = "map_server.decay.half_life_occupied"
 SCENARIO = Path("tiny.yaml")

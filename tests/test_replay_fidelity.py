@@ -21,11 +21,8 @@ from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.scan import PoseStd, Scan
 from mapserver.service.replay import belief_for, journal_scans, read_settings
 from mapserver.store.offline import fuse_all
-from scenarios import runner
-from scenarios.cli import main
-from scenarios.embedded_server import EmbeddedServer
-from scenarios.record import RunRecord
-from scenarios.replay_fused import (
+from scenarios.cli.main import main
+from scenarios.replay.fused import (
     FUSED_TOPIC,
     fused_message,
     fused_scan,
@@ -33,9 +30,12 @@ from scenarios.replay_fused import (
     shuffle_f8,
     unshuffle_f8,
 )
-from scenarios.replay_mcap import REPLAY_FILENAME, read_fused_replay, write_replay
-from scenarios.replay_objects import ObjectRecorder
-from scenarios.spec import load_scenario
+from scenarios.replay.mcap import REPLAY_FILENAME, read_fused_replay, write_replay
+from scenarios.replay.objects import ObjectRecorder
+from scenarios.run import runner
+from scenarios.run.embedded_server import EmbeddedServer
+from scenarios.run.record import RunRecord
+from scenarios.spec.scenario import load_scenario
 
 TINY = "scenarios/tiny.yaml"
 

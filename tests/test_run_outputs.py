@@ -18,11 +18,10 @@ from fleet.sim import CollisionEvent
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
-from scenarios.collisions_json import collision_counts, write_collisions
-from scenarios.foxglove_messages import decode_ranges, encode_ranges
-from scenarios.foxglove_schemas import SCHEMAS
-from scenarios.freezes_json import write_freezes
-from scenarios.record import (
+from scenarios.replay.foxglove_messages import decode_ranges, encode_ranges
+from scenarios.replay.foxglove_schemas import SCHEMAS
+from scenarios.replay.mcap import ReplayFileError, read_geometry, read_scans, write_replay
+from scenarios.run.record import (
     BlockingCell,
     EventRecord,
     FreezeRecord,
@@ -35,8 +34,9 @@ from scenarios.record import (
     ScanSample,
     UnitSample,
 )
-from scenarios.replay_mcap import ReplayFileError, read_geometry, read_scans, write_replay
-from scenarios.report import throughput_rows, title, write_report
+from scenarios.score.collisions_json import collision_counts, write_collisions
+from scenarios.score.freezes_json import write_freezes
+from scenarios.score.report import throughput_rows, title, write_report
 
 GEOMETRY = GridGeometry(width=40, height=30, resolution=0.25, origin_x=-1.0, origin_y=-0.5)
 UNITS = ("u1", "u2", "u10")

@@ -6,10 +6,10 @@ from dataclasses import replace
 import pytest
 from mcap.reader import make_reader
 
-from scenarios import runner
-from scenarios.cli import main
-from scenarios.embedded_server import EmbeddedServer
-from scenarios.spec import load_scenario
+from scenarios.cli.main import main
+from scenarios.run import runner
+from scenarios.run.embedded_server import EmbeddedServer
+from scenarios.spec.scenario import load_scenario
 
 TINY = "scenarios/tiny.yaml"
 CONTRACT_KEYS = {

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from fleet.layout import Kind
 from fleet.world import World
 from mapserver.core.sensor_model import Policy
-from scenarios.spec import (
+from scenarios.spec.scenario import (
     TOP_KEYS,
     BreakdownEvent,
     DropEvent,

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from scenario_helpers import TINY, tiny5
 
-from scenarios.cli import main
-from scenarios.metric_values import metric_value
-from scenarios.pareto import dominates
-from scenarios.sweep import ScenarioError, SweepRun, expand, load_sweep
-from scenarios.sweep_results import CONTRACT_METRICS
-from scenarios.sweep_run import MissingExtraError, import_ray, run_sweep
+from scenarios.cli.main import main
+from scenarios.sweep.metric_values import metric_value
+from scenarios.sweep.parallel import MissingExtraError, import_ray, run_sweep
+from scenarios.sweep.pareto import dominates
+from scenarios.sweep.results import CONTRACT_METRICS
+from scenarios.sweep.sweep_file import ScenarioError, SweepRun, expand, load_sweep
 
 HALF_LIFE = "map_server.decay.half_life_occupied"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -1,4 +1,4 @@
-"""Throughput metrics (scenarios.throughput): ideal trip times worked out by hand, and the
+"""Throughput metrics (scenarios.score.throughput): ideal trip times worked out by hand, and the
 aggregation of a hand-built sequence of unit-ticks."""
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from fleet.unit import DriveLimits
 from mapserver.core.geometry import GridGeometry
 from planner.lane_graph import LaneGraph
 from planner.navigator import Command
-from scenarios.agents import AgentState
-from scenarios.record import RunRecord, TripRecord
-from scenarios.throughput import ThroughputTracker, ideal_trip_s, segment_s
-from scenarios.trips_json import write_trips
+from scenarios.run.agents import AgentState
+from scenarios.run.record import RunRecord, TripRecord
+from scenarios.score.throughput import ThroughputTracker, ideal_trip_s, segment_s
+from scenarios.score.trips_json import write_trips
 
 LIMITS = DriveLimits(max_speed=1.5, max_accel=1.0, max_turn_rate=1.5)
 

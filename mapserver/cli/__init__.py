@@ -1,2 +1,2 @@
 """The map server's commands (``fleetmap serve``, ``replay``, ``map build``,
-``journal``), registered by ``scenarios.cli``."""
+``journal``), registered by ``scenarios.cli.main``."""

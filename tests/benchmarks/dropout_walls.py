@@ -5,7 +5,7 @@ Run: ``python tests/benchmarks/dropout_walls.py [SCENARIO.yaml] [--policies P,..
 
 Runs the scenario (default ``scenarios/dropouts.yaml``: a static warehouse, LiDARs with
 2 cm range noise and 5 % dropouts) once per policy (default decay, binary, sticky) with
-``scenarios.runner.run``, and at the end compares the server's final costmap with the
+``scenarios.run.runner.run``, and at the end compares the server's final costmap with the
 ground-truth costmap the freeze classifier uses (``Episode.truth``):
 
 - ``lethal``: cells lethal (254) in the truth;
@@ -40,8 +40,8 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL  # noqa: E402
-from scenarios.runner import run  # noqa: E402
-from scenarios.spec import load_scenario  # noqa: E402
+from scenarios.run.runner import run  # noqa: E402
+from scenarios.spec.scenario import load_scenario  # noqa: E402
 
 ROOT = HERE.parents[1]
 UNKNOWN = 255

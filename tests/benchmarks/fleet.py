@@ -5,7 +5,7 @@ Run: ``python tests/benchmarks/fleet.py [SCENARIO.yaml ...] [--all] [--policy P]
 
 Each scenario (default: ``scenarios/static_shift.yaml``, ``scenarios/moved_pod.yaml``,
 ``scenarios/busy_shift.yaml``; ``--all``: every ``scenarios/*.yaml`` but ``tiny.yaml``)
-is run end to end twice in this process with ``scenarios.runner.run`` (its own embedded
+is run end to end twice in this process with ``scenarios.run.runner.run`` (its own embedded
 map server each time, the scenario's seed), once per lane coordinator:
 
 - ``edge-by-edge``: ``RunOptions(segment_m=None, reserve_ahead=False)``, the coordinator
@@ -13,7 +13,7 @@ map server each time, the scenario's seed), once per lane coordinator:
   lane at a time, when it arrives at the lane's tail;
 - ``reserve-ahead``: ``RunOptions()`` (the defaults): lanes split every 4 m so units can
   follow one another, and a unit asks for its next lanes a braking distance (plus
-  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.runner._coordinator``).
+  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.run.runner._coordinator``).
 
 Only the coordinator differs: both runs use the same drive controller (regulated pure
 pursuit), the same navigator (A* on the shared costmap, line-of-sight shortcuts,
@@ -53,9 +53,9 @@ import math  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
-from scenarios.record import RunRecord, UnitSample  # noqa: E402
-from scenarios.runner import RunOptions, run  # noqa: E402
-from scenarios.spec import Scenario, load_scenario  # noqa: E402
+from scenarios.run.record import RunRecord, UnitSample  # noqa: E402
+from scenarios.run.runner import RunOptions, run  # noqa: E402
+from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
 ROOT = HERE.parents[1]
 DEFAULT = ("static_shift.yaml", "moved_pod.yaml", "busy_shift.yaml")

@@ -33,7 +33,7 @@ import httpx
 import numpy as np
 
 from fleet.boxworld import sample_scans, warehouse_layout
-from scenarios.embedded_server import free_port
+from scenarios.run.embedded_server import free_port
 
 CEILING_APP = textwrap.dedent(
     """
@@ -74,7 +74,7 @@ def start(cmd: list[str], port: int, env: dict[str, str] | None = None) -> subpr
 
 
 def serve_cmd(port: int, data_dir: str) -> list[str]:
-    return [sys.executable, "-m", "scenarios.cli", "serve", "--port", str(port),
+    return [sys.executable, "-m", "scenarios.cli.main", "serve", "--port", str(port),
             "--data-dir", data_dir]  # fmt: skip
 
 

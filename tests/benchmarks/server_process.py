@@ -1,9 +1,9 @@
 """A ``fleetmap serve`` subprocess for the load and fault benchmarks, and readings of it.
 
-``LoggedServer`` is ``scenarios.embedded_server.EmbeddedServer`` with the server's
+``LoggedServer`` is ``scenarios.run.embedded_server.EmbeddedServer`` with the server's
 stdout and stderr in a log file (a pipe nobody reads stalls a server that logs a lot),
 an optional descriptor limit (``nofile``, set in the child before exec), and this
-checkout as the working directory (so ``-m scenarios.cli`` runs this checkout's code).
+checkout as the working directory (so ``-m scenarios.cli.main`` runs this checkout's code).
 It reads the server process: RSS [MiB], CPU time [s], log and journal size [bytes],
 journaled scans. Not a benchmark itself (imported by ``fleet_load`` and
 ``fault_probes``).
@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from mapserver.store.journal import Journal, journal_path
-from scenarios.embedded_server import EmbeddedServer, free_port
+from scenarios.run.embedded_server import EmbeddedServer, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 MIB = 1024 * 1024
@@ -45,7 +45,7 @@ class LoggedServer(EmbeddedServer):
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.log_path = self.data_dir.parent / f"{self.data_dir.name}-{self.port}.log"
-        cmd = [sys.executable, "-m", "scenarios.cli", "serve", "--host", "127.0.0.1",
+        cmd = [sys.executable, "-m", "scenarios.cli.main", "serve", "--host", "127.0.0.1",
                "--port", str(self.port), "--data-dir", str(self.data_dir)]  # fmt: skip
         if settings:
             config = self.data_dir.parent / f"{self.data_dir.name}-{self.port}.yaml"

@@ -161,7 +161,7 @@ def with_server(warehouse: Warehouse, sim_seconds: float, threads: int, in_fligh
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory() as data_dir:
-        cmd = [sys.executable, "-m", "scenarios.cli", "serve", "--host", "127.0.0.1",
+        cmd = [sys.executable, "-m", "scenarios.cli.main", "serve", "--host", "127.0.0.1",
                "--port", str(port), "--data-dir", data_dir]  # fmt: skip
         env = {k: v for k, v in os.environ.items() if not k.startswith("FLEETMAP_")}
         server = subprocess.Popen(cmd, env=env, stderr=subprocess.DEVNULL)

@@ -1,0 +1,1 @@
+"""The ``fleetmap`` command: ``scenarios.cli.main:main`` and its subcommands."""

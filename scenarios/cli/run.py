@@ -1,0 +1,104 @@
+"""``fleetmap run``: one scenario, its metrics as a table (or JSON); ``fleetmap compare``
+is ``scenarios.sweep.compare``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from mapserver.core.sensor_model import Policy
+
+METRICS_FILE = "metrics.json"
+TABLE_COLUMNS = (
+    ("policy", "policy"),
+    ("phantom_freezes", "phantom freezes"),
+    ("phantom_freeze_seconds", "phantom s"),
+    ("true_block_freezes", "true blocks"),
+    ("stale_free_plans", "stale-free plans"),
+    ("collisions", "collisions"),
+    ("time_to_clear_s", "time to clear s"),
+    ("tasks_completed", "tasks"),
+    ("trips_per_unit_hour", "trips/unit-h"),
+    ("trip_time_ratio", "actual/ideal"),
+    ("fleet_efficiency", "efficiency"),
+)
+TWO_DECIMALS = ("trip_time_ratio", "fleet_efficiency")  # ratios near 1: one decimal is too coarse
+
+
+def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``run``."""
+    run = subparsers.add_parser(
+        "run",
+        help="run one scenario end to end",
+        description="Run a scenario: simulated units, the shared map, planners; writes "
+        "metrics.json, freezes.json, trips.json, collisions.json, report.png and replay.mcap "
+        "to --out.",
+    )
+    run.add_argument("scenario", type=Path, help="scenario YAML (see docs/scenarios.md)")
+    run.add_argument("--policy", choices=[p.value for p in Policy], help="override the map policy")
+    run.add_argument("--seed", type=int, help="override the scenario's seed")
+    run.add_argument("--server", help="URL of a running map server (default: start one)")
+    run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
+    run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
+    run.set_defaults(handler=run_one)
+
+
+def run_one(args: argparse.Namespace) -> int:
+    from scenarios.run.execute import ScenarioError, execute
+
+    try:
+        metrics = execute(args.scenario, args.policy, args.seed, args.server, args.out,
+                          progress=_progress_bar(args.scenario.stem), announce=_say)  # fmt: skip
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"\nfleetmap run: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(metrics))
+    else:
+        print(format_table([metrics]))
+        print(f"outputs in {args.out}")
+    return 0
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of the comparison columns."""
+    cells = [[title for _, title in TABLE_COLUMNS]]
+    for row in rows:
+        cells.append([_cell(row.get(key), key in TWO_DECIMALS) for key, _ in TABLE_COLUMNS])
+    widths = [max(len(r[i]) for r in cells) for i in range(len(TABLE_COLUMNS))]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _cell(value: object, fine: bool = False) -> str:
+    if isinstance(value, float):
+        return f"{value:.2f}" if fine else f"{value:.1f}"
+    if value is None:
+        return "-"
+    if isinstance(value, list):
+        return ",".join("never" if v is None else f"{v:.1f}" for v in value) or "-"
+    return str(value)
+
+
+def _progress_bar(label: str):
+    """A one-line progress bar on stderr (only when it is a terminal)."""
+    if not sys.stderr.isatty():
+        return None
+    width = max(10, min(40, os.get_terminal_size(sys.stderr.fileno()).columns - 40))
+
+    def show(now: float, total: float) -> None:
+        done = min(1.0, now / total) if total > 0 else 1.0
+        bar = "#" * int(done * width)
+        print(f"\r{label} [{bar:<{width}}] {now:6.1f}/{total:.0f} s", end="", file=sys.stderr)
+        if done >= 1.0:
+            print(file=sys.stderr)
+
+    return show

@@ -1,0 +1,419 @@
+"""One scenario run as an episode: ``reset(seed)``, then ``step()`` until ``done``.
+
+The shape is Gymnasium's (Towers et al., *Gymnasium: A Standard Interface for
+Reinforcement Learning Environments*, 2024): ``reset`` builds everything from the
+scenario and one seed, ``step`` advances ``dt`` [s] of sim time, and two episodes reset
+with the same seed are identical step for step. Each ``step``:
+
+1. the fleet steps (PyBullet): units move, scheduled events happen, LiDARs scan, and the
+   tick's scans go to the map server (acknowledged before any map read, so runs are
+   deterministic for a seed);
+2. every ``map_read_s`` [s] the units read the shared costmap (``GET /v1/costmap``,
+   raw); every ``lane_refresh_s`` the lane coordinator re-reads lane costs
+   (``POST /v1/query/segments``);
+3. the coordinator takes the units' positions and grants lanes; breakdowns start;
+   released trips go to idle units (``scenarios.run.dispatch``); each unit's agent plans on
+   the costmap and commands its drive;
+4. the observers that are due run (``scenarios.run.observers``): each declares how often
+   (``every_s``) and reads what the step did (``StepReport``); they record, score and
+   publish, and never change the fleet.
+
+``finish()`` classifies every freeze phantom or true (planning on the ground-truth
+costmap during it) and assembles the metrics of CONTRACT section 3 into the
+``RunRecord``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fleet.ground_truth import GroundTruth
+from fleet.poster import ScanPoster
+from fleet.sim import FleetSim, StepResult
+from fleet.world import World
+from mapserver.client import Grid, MapClient
+from mapserver.core.queries import query_segments
+from planner.coordinator import LaneCoordinator
+from planner.freeze import TruthLanes, classify
+from planner.grid_search import GridPlanner
+from planner.lane_graph import LaneGraph, SegmentQuerier
+from planner.navigator import UnitNavigator
+from scenarios.run.agents import AgentState, TaskAgent
+from scenarios.run.dispatch import Dispatcher
+from scenarios.run.fleet_filter import FleetMemberFilter
+from scenarios.run.observers import Observer, Schedule, StandardObservers
+from scenarios.run.record import EventRecord, RunRecord
+from scenarios.score.clearing import ClearingTracker
+from scenarios.score.collisions_json import collision_counts
+from scenarios.score.evidence import freeze_records
+from scenarios.score.map_truth import summary as map_truth_summary
+from scenarios.spec.scenario import Scenario
+from scenarios.spec.tasks import Task
+
+POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim steps on
+RESERVE_MARGIN_M = 1.0
+"""[m] how much earlier than its braking distance a unit asks for its next lanes."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is observed: map_read_s, lane_refresh_s [s] between reads; what the
+    replay keeps: unit poses every ``record_units_s`` [s], scans every ``record_scans_s``
+    [s] per unit, grids every ``record_grids_s`` [s]. How the fleet is coordinated:
+    lanes split every ``segment_m`` [m] (None: junction to junction) so units can follow
+    one another; ``reserve_ahead``: units are granted their next lanes before they
+    reach the end of the one they drive (False: one lane at a time, on arrival);
+    ``dispatch``: which idle unit gets a released trip (``scenarios.run.dispatch.RULES``);
+    ``lanes_from``: where the coordinator reads lane costs: "costmap", the costmap the
+    fleet last read (``CostmapSegments``), or "server", a ``POST /v1/query/segments``
+    per refresh."""
+
+    def __post_init__(self) -> None:
+        if self.lanes_from not in ("costmap", "server"):
+            raise ValueError(f"lanes_from must be 'costmap' or 'server', got {self.lanes_from!r}")
+
+    map_read_s: float = 0.5
+    lane_refresh_s: float = 1.0
+    record_units_s: float = 0.5
+    record_scans_s: float = 0.5
+    record_grids_s: float = 5.0
+    segment_m: float | None = 4.0
+    reserve_ahead: bool = True
+    dispatch: str = "nearest"
+    lanes_from: str = "costmap"
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A drive's speed [m/s] and turn rate [rad/s] over the sim step just taken."""
+
+    speed: float
+    turn_rate: float
+
+
+@dataclass
+class StepReport:
+    """What one ``step`` did, for the observers: the sim's result, the trips handed out
+    (unit, trip, start node, position [m]), every unit's position [m] at the step,
+    every agent's state and its drive's motion before the new command, the paths newly
+    sent to drives, the units blocked now."""
+
+    now: float
+    sim: StepResult
+    positions: dict[str, tuple[float, float]] = field(default_factory=dict)
+    assigned: list[tuple[str, Task, str, tuple[float, float]]] = field(default_factory=list)
+    states: dict[str, AgentState] = field(default_factory=dict)
+    motion: dict[str, Motion] = field(default_factory=dict)
+    new_paths: list[tuple[str, tuple[tuple[float, float], ...]]] = field(default_factory=list)
+    frozen: set[str] = field(default_factory=set)
+
+
+class Episode:
+    """A run of ``setup`` against the map server behind ``client`` (module docstring).
+
+    extra_observers: run after the standard ones (``standard_observers``), e.g. a
+    progress bar. Call ``reset`` first, ``close`` at the end (or use ``with``).
+    """
+
+    def __init__(
+        self,
+        setup: Scenario,
+        client: MapClient,
+        options: RunOptions | None = None,
+        extra_observers: Sequence[Observer] = (),
+    ) -> None:
+        self.setup = setup
+        self.client = client
+        self.options = options or RunOptions()
+        self.geometry = setup.geometry()
+        meta = client.map_meta()
+        if meta.geometry != self.geometry:
+            raise ValueError(
+                f"server: its grid {meta.geometry} is not the scenario's {self.geometry}"
+            )
+        self._extra = tuple(extra_observers)
+        self.world: World | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, seed: int | None = None) -> None:
+        """Build the world, fleet, lanes and observers for ``seed`` (None: the
+        scenario's own) at sim time 0."""
+        self.close()
+        if seed is not None:
+            self.setup = self.setup.with_seed(seed)
+        setup, opts = self.setup, self.options
+        self.wall0 = time.perf_counter()
+        self.record = RunRecord(
+            setup.name, setup.map_server.policy.value, setup.seed, self.geometry
+        )
+        units = setup.unit_specs()
+        self.world = world = World(setup.build_layout()).__enter__()
+        radius = {spec.unit_id: spec.drive.radius for spec in units}
+
+        def unit_positions() -> dict[str, tuple[float, float, float]]:
+            return {uid: (*_xy(world.unit_pose(uid)), r) for uid, r in radius.items()}
+
+        # Scans go out on a worker thread while the sim casts the next tick's rays;
+        # every map read waits for them first (``synced``), so runs stay deterministic.
+        self.poster = FleetMemberFilter(
+            ScanPoster(self.client, in_flight=POSTS_IN_FLIGHT), unit_positions
+        )
+        self.sim = FleetSim(world, units, seed=setup.seed, poster=self.poster)
+        self.graph = graph = setup.build_lane_graph(segment_m=opts.segment_m)
+        lanes = CostmapSegments(self) if opts.lanes_from == "costmap" else self.client
+        self.coordinator = coordinator = _coordinator(graph, lanes, units, opts)
+        planner = GridPlanner(self.geometry)
+        reroute = _rerouter(coordinator, graph)
+        self.agents = {
+            spec.unit_id: TaskAgent(
+                spec.unit_id,
+                graph,
+                coordinator,
+                UnitNavigator(
+                    spec.unit_id, self.geometry, planner, setup.recovery, reroute=reroute
+                ),
+                priority=float(-i),
+            )
+            for i, spec in enumerate(units)
+        }
+        for i, spec in enumerate(units):  # every unit holds its start node from t = 0
+            node = _start_node(coordinator, graph, spec.unit_id, (spec.start.x, spec.start.y))
+            coordinator.request(spec.unit_id, node, node, float(-i), 0.0)
+        self.truth = GroundTruth(world, self.geometry, setup.inflation())
+        self.clearing = ClearingTracker(self.geometry)
+        self.events: list = []
+        for change in setup.world_schedule():
+            self.sim.schedule(change.time, self._recording(change))
+        self._breakdowns = list(setup.breakdowns())
+        self.dispatcher = Dispatcher(setup.task_stream(), graph, opts.dispatch)
+        self.costs: Grid | None = None
+        self._map_reads = Schedule(opts.map_read_s)
+        self._lane_reads = Schedule(opts.lane_refresh_s)
+        self.standard = StandardObservers.of(self)
+        self.observers = (*self.standard.all(), *self._extra)
+        self._observer_schedules = [Schedule(o.every_s) for o in self.observers]
+        self.report: StepReport | None = None
+
+    def close(self) -> None:
+        """Release the world (PyBullet); the record stays."""
+        if self.world is not None:
+            self.world.__exit__(None, None, None)
+            self.world = None
+
+    def __enter__(self) -> Episode:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def now(self) -> float:
+        """[s] sim time."""
+        return self.sim.time
+
+    @property
+    def done(self) -> bool:
+        """True once the scenario's duration has run."""
+        return self.sim.time >= self.setup.duration - 1e-9
+
+    def synced(self) -> MapClient:
+        """The map client, once every scan posted so far is acknowledged."""
+        self.poster.flush()
+        return self.client
+
+    # ------------------------------------------------------------------ one step
+    def step(self) -> StepReport:
+        """Advance ``dt`` [s] (module docstring); returns what the step did."""
+        if self.world is None:
+            raise RuntimeError("reset() the episode before step()")
+        result = self.sim.step(self.setup.dt)
+        now = result.time
+        positions = {uid: _xy(u.drive.pose) for uid, u in self.sim.units.items()}
+        report = StepReport(now, result, positions)
+        self.record.collisions.extend(result.collisions)
+        if self._map_reads.due(now):  # due at the first step
+            self.costs = self.synced().costmap()
+        if self._lane_reads.due(now):
+            if self.options.lanes_from == "server":
+                self.synced()
+            self.coordinator.refresh(now)
+        self.coordinator.tick(now, positions)
+        self._start_breakdowns(now, positions)
+        self._dispatch(now, positions, report)
+        for uid, agent in self.agents.items():
+            drive = self.sim.unit(uid)
+            before = agent.navigator.last_plan
+            state = agent.step(now, positions[uid], self.costs.data)
+            report.states[uid] = state
+            report.motion[uid] = Motion(drive.speed, drive.turn_rate)
+            command = state.command
+            if command.kind == "follow" and agent.navigator.last_plan is not before:
+                drive.follow(command.path[1:] or command.path)
+                report.new_paths.append((uid, command.path))
+            elif command.kind in ("stop", "rotate"):
+                drive.halt()
+            if state.blocked_reason is not None:
+                report.frozen.add(uid)
+        self.report = report
+        for observer, schedule in zip(self.observers, self._observer_schedules, strict=True):
+            if schedule.due(now):
+                observer.observe(self)
+        return report
+
+    def _start_breakdowns(self, now: float, positions) -> None:
+        for event in [b for b in self._breakdowns if b.at <= now + 1e-9]:
+            self._breakdowns.remove(event)
+            self.agents[event.unit_id].broken_until = event.until
+            self.sim.unit(event.unit_id).halt()
+            x, y = positions[event.unit_id]
+            self.record.events.append(
+                EventRecord(now, event.kind, event.unit_id, x, y, event.describe())
+            )
+
+    def _dispatch(self, now: float, positions, report: StepReport) -> None:
+        idle = {
+            uid: node
+            for uid, agent in self.agents.items()
+            if agent.task is None and now >= agent.broken_until
+            if (node := _start_node(self.coordinator, self.graph, uid, positions[uid])) is not None
+        }
+        for uid, task in self.dispatcher.match(now, idle):
+            self.agents[uid].assign(task, now, idle[uid])
+            report.assigned.append((uid, task, idle[uid], positions[uid]))
+
+    def _recording(self, change) -> Callable[[World], None]:
+        """Apply a scheduled world change; record its event once, and watch every removal
+        (an object leaving its place) for time to clear."""
+        event = change.event
+
+        def apply(world: World) -> None:
+            object_id = getattr(event, "object_id", "")
+            before = world.obstacles.get(object_id)
+            change.apply(world)
+            if event in self.events:
+                return  # a person's later steps
+            self.events.append(event)
+            after = world.obstacles.get(object_id)
+            where = (after or before).shape.bounds() if (after or before) else (0, 0, 0, 0)
+            x, y = (where[0] + where[2]) / 2, (where[1] + where[3]) / 2
+            self.record.events.append(
+                EventRecord(self.sim.time, event.kind, object_id, x, y, event.describe())
+            )
+            if event.kind in ("move", "remove") and before is not None:
+                self.clearing.removed(object_id, before.shape.bounds(), self.sim.time)
+
+        return apply
+
+    # ------------------------------------------------------------------ the end
+    def finish(self) -> RunRecord:
+        """Score the run (module docstring) and return its record."""
+        self.synced()
+        now = self.sim.time
+        for observer in self.observers:
+            observer.finish(self)
+        planner = GridPlanner(self.geometry)
+
+        def plan(costs: np.ndarray, start, goal) -> bool:
+            return planner.plan(costs, start, goal).found
+
+        lanes = TruthLanes(self.graph, self.geometry)  # lane freezes: the router on truth
+        watch = self.standard.freezes
+        watch.detector.finish(now)
+        for freeze in watch.detector.freezes:  # every freeze, not only those still open
+            classify(freeze, self.truth.costmap, plan, lane_plan=lanes)
+        self.record.freezes = freeze_records(
+            watch.detector.freezes, self.agents, self.coordinator, self.truth,
+            watch.evidence, self.standard.scans.index,
+        )  # fmt: skip
+        self.record.time_to_clear = {
+            w.object_id: t
+            for w, t in zip(self.clearing.watches, self.clearing.times(), strict=True)
+        }
+        self.record.metrics = self._metrics(time.perf_counter() - self.wall0)
+        return self.record
+
+    def _metrics(self, wall_seconds: float) -> dict[str, object]:
+        freezes = self.record.freezes
+        phantom = [f for f in freezes if f.phantom]
+        replans = sum(
+            1 for a in self.agents.values() for act in a.navigator.actions
+            if act.action in ("replan", "reroute")
+        ) + sum(1 for d in self.coordinator.log if d.action == "reroute")  # fmt: skip
+        throughput = self.standard.throughput.tracker
+        return {
+            "scenario": self.setup.name,
+            "policy": self.record.policy,
+            "seed": self.setup.seed,
+            "units": self.setup.units.count,
+            "sim_seconds": round(self.sim.time, 6),
+            "wall_seconds": round(wall_seconds, 3),
+            "tasks_completed": len(throughput.trips),
+            "phantom_freezes": len(phantom),
+            "phantom_freeze_seconds": round(sum(f.duration for f in phantom), 3),
+            "true_block_freezes": len(freezes) - len(phantom),
+            "stale_free_plans": sum(1 for p in self.record.plans if p.stale_free),
+            **collision_counts(self.record),  # collisions (the fleet's), scenario_collisions
+            "time_to_clear_s": [None if t is None else round(t, 3) for t in self.clearing.times()],
+            "map_truth": map_truth_summary(self.record.map_truth),
+            "replans": replans,
+            "deadlocks": self.coordinator.deadlocks,
+            "scans_fused": self.poster.poster.posted,
+            "events": len(self.events),
+            **throughput.metrics(self.setup.units.count, self.sim.time),
+        }
+
+
+class CostmapSegments:
+    """Lane readings (``query_segments``, CONTRACT 2.5) worked out on the costmap the
+    fleet last read over HTTP, as the server works them out on its own: no request per
+    refresh, and none of the map server's time taken from fusing scans."""
+
+    def __init__(self, episode: Episode) -> None:
+        self.episode = episode
+
+    def query_segments(self, segments):
+        """One reading per segment ``(x0, y0, x1, y1)`` [m], in order."""
+        return query_segments(self.episode.geometry, self.episode.costs.data, segments)
+
+
+def _xy(pose) -> tuple[float, float]:
+    return (pose.x, pose.y)
+
+
+def _coordinator(
+    graph: LaneGraph, client: SegmentQuerier, units, opts: RunOptions
+) -> LaneCoordinator:
+    """The run's lane coordinator: a node is left once a unit's body is clear of it, and
+    with ``opts.reserve_ahead`` units ask for their next lanes a braking distance (plus
+    ``RESERVE_MARGIN_M``) before the end of what they hold."""
+    clear_m = 2.0 * max(spec.drive.radius for spec in units) + 0.2
+    braking_m = max(spec.drive.max_speed**2 / (2 * spec.drive.max_accel) for spec in units)
+    ahead_m = braking_m + RESERVE_MARGIN_M if opts.reserve_ahead else 0.0
+    return LaneCoordinator(graph, client, clear_m=clear_m, reserve_ahead_m=ahead_m)
+
+
+def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:
+    """Where a unit's trip starts: the node it stands at or drives to (None: stranded on a
+    lane); a unit the coordinator does not know yet is at the nearest node nobody holds."""
+    if not coordinator.knows(uid):  # the nearest node nobody holds
+        free = [n for n in graph.nodes if coordinator.holder(n) is None]
+        return min(free, key=lambda n: (math.dist(graph.position(n), position), n), default=None)
+    status = coordinator.status(uid)
+    return status.node or status.target
+
+
+def _rerouter(coordinator: LaneCoordinator, graph: LaneGraph):
+    """The navigator's "ask for another route": re-read the lanes, give the route's nodes."""
+
+    def reroute(unit_id: str, position):
+        status = coordinator.status(unit_id)
+        if status.state == "no_route" or not status.route:
+            return None
+        return [graph.position(node) for node in status.route[1:2]] or None
+
+    return reroute

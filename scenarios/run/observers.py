@@ -1,0 +1,300 @@
+"""What watches an episode: recorders, scorers and publishers, each on its own clock.
+
+An observer declares ``every_s`` [s] (None: every step) and, when due, reads the
+episode and its last ``StepReport`` (``scenarios.run.episode``); it never changes the fleet.
+``finish`` runs once at the end, before the episode scores the run.
+
+The standard set (``StandardObservers``): the replay's scans (every step, sampled per
+unit), plans checked against ground truth (stale-free plans), the freeze detector and
+the evidence of blocking cells, throughput, time to clear and the map against truth
+(both at every map read), unit poses for the replay and the live viewer, costmap
+snapshots and the world's objects (``replay_objects``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from mapserver.client import UnitState
+from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
+from scenarios.replay.objects import ObjectRecorder
+from scenarios.run.record import GridSample, PlanSample, ScanSample, UnitSample
+from scenarios.score.map_truth import footprints, measure, reachable_floor
+from scenarios.score.throughput import ThroughputTracker
+
+if TYPE_CHECKING:
+    from scenarios.run.episode import Episode
+
+
+class Observer(Protocol):
+    """Runs every ``every_s`` [s] of sim time (None: every step)."""
+
+    every_s: float | None
+
+    def observe(self, episode: Episode) -> None:
+        """Look at the episode after a step."""
+        ...
+
+    def finish(self, episode: Episode) -> None:
+        """The episode is over."""
+        ...
+
+
+class Schedule:
+    """Due at the first step and then once ``period`` [s] has passed since it last was
+    (every step when ``period`` is None)."""
+
+    def __init__(self, period: float | None) -> None:
+        self.period = period
+        self._next = -np.inf
+
+    def due(self, now: float) -> bool:
+        if self.period is None:
+            return True
+        if now < self._next - 1e-9:
+            return False
+        self._next = now + self.period
+        return True
+
+
+class _Observer:
+    every_s: float | None = None
+
+    def finish(self, episode: Episode) -> None:
+        return None
+
+
+class ScanRecorder(_Observer):
+    """Every scan's stamp and origin (``index``: stamp -> [(unit, x, y, range_max)], for
+    the evidence of freezes) and, per unit, one scan every ``sample_s`` [s] for the
+    replay (``record.scans``)."""
+
+    def __init__(self, sample_s: float) -> None:
+        self.sample_s = sample_s
+        self.index: dict[float, list[tuple[str, float, float, float]]] = {}
+        self._next: dict[str, float] = {}
+
+    def observe(self, episode: Episode) -> None:
+        now = episode.report.now
+        for scan in episode.report.sim.scans:
+            self.index.setdefault(scan.stamp, []).append(
+                (scan.unit_id, scan.pose.x, scan.pose.y, scan.range_max)
+            )
+            if now >= self._next.get(scan.unit_id, 0.0):
+                episode.record.scans.append(_scan_sample(scan))
+                self._next[scan.unit_id] = now + self.sample_s
+
+
+class PlanChecker(_Observer):
+    """Every path sent to a drive, with the cells of it lethal in ground truth
+    (``record.plans``: stale-free plans)."""
+
+    def observe(self, episode: Episode) -> None:
+        now = episode.report.now
+        for uid, path in episode.report.new_paths:
+            stale = stale_free_cells(path, episode.truth.costmap(now), episode.geometry)
+            episode.record.plans.append(PlanSample(now, uid, tuple(path), tuple(stale)))
+
+
+class FreezeWatch(_Observer):
+    """The freeze detector (``planner.freeze``), fed every unit's state each step, and
+    the map's evidence of each blocking cell, read when a unit is first blocked by it
+    (``evidence``: (unit, point) -> (stamp, CellInfo))."""
+
+    def __init__(self) -> None:
+        self.detector = FreezeDetector()
+        self.evidence: dict = {}
+
+    def observe(self, episode: Episode) -> None:
+        report = episode.report
+        for uid, state in report.states.items():
+            command = state.command
+            moving = command.moving or command.kind == "idle"
+            self.detector.observe(
+                UnitObservation(
+                    uid,
+                    report.now,
+                    state.has_task,
+                    moving,
+                    state.blocked_reason,
+                    state.blocking,
+                    state.goal,
+                    report.positions[uid],
+                    state.lane_block,
+                )  # fmt: skip
+            )
+            if state.blocked_reason is not None:
+                self._note(episode, uid, report.now, state.blocking)
+
+    def _note(self, episode: Episode, uid: str, now: float, points) -> None:
+        """Read each blocking cell's evidence from the map when the unit's current freeze
+        first names it (a later freeze reads it again: ``evidence`` keeps every reading)."""
+        since = self.detector.open_since(uid)
+        since = now if since is None else since
+        new = [p for p in points if not any(s >= since for s, _ in self.evidence.get((uid, p), ()))]
+        if new:
+            for point, info in zip(new, episode.synced().query_cells(new), strict=True):
+                self.evidence.setdefault((uid, point), []).append((now, info))
+
+
+class Throughput(_Observer):
+    """Trips and unit-ticks for the throughput metrics (``scenarios.score.throughput``)."""
+
+    def __init__(self, episode: Episode) -> None:
+        self.tracker = ThroughputTracker(
+            episode.graph, episode.setup.dt, episode.coordinator.arrive_tol
+        )
+
+    def observe(self, episode: Episode) -> None:
+        report = episode.report
+        for uid, task, node, position in report.assigned:
+            limits = episode.sim.unit(uid).limits
+            self.tracker.assigned(position, node, task, report.now, limits)
+        for uid, state in report.states.items():
+            agent = episode.agents[uid]
+            self.tracker.observe(uid, report.now, agent, state, report.motion[uid])
+
+    def finish(self, episode: Episode) -> None:
+        episode.record.trips = self.tracker.trips
+
+
+class ClearingWatch(_Observer):
+    """Time to clear: each removed object's old place, checked at every map read."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+
+    def observe(self, episode: Episode) -> None:
+        episode.clearing.observe(episode.costs.data, episode.report.now)
+
+
+class MapTruthWatch(_Observer):
+    """The shared costmap against ground truth at every map read (``scenarios.score.map_truth``,
+    ``record.map_truth``): the reachable floor from the units' start cells, flood-filled
+    again only when the world changed, and the units' footprints at the read left out."""
+
+    def __init__(self, episode: Episode, every_s: float) -> None:
+        self.every_s = every_s
+        specs = episode.setup.unit_specs()
+        self.starts = [episode.geometry.world_to_cell(s.start.x, s.start.y) for s in specs]
+        self.radius = {s.unit_id: s.drive.radius for s in specs}
+        self._revision: int | None = None
+        self._reachable: np.ndarray | None = None
+
+    def observe(self, episode: Episode) -> None:
+        now = episode.report.now
+        truth = episode.truth.costmap(now)
+        if self._reachable is None or episode.world.revision != self._revision:
+            self._reachable = reachable_floor(truth, self.starts)
+            self._revision = episode.world.revision
+        bodies = [(x, y, self.radius[uid]) for uid, (x, y) in episode.report.positions.items()]
+        ignore = footprints(episode.geometry, bodies)
+        sample = measure(now, episode.costs.data, truth, self._reachable, ignore)
+        episode.record.map_truth.append(sample)
+
+
+class UnitRecorder(_Observer):
+    """Every unit's pose, motion, freeze and task every ``every_s`` [s] (the replay)."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+
+    def observe(self, episode: Episode) -> None:
+        now, frozen = episode.report.now, episode.report.frozen
+        for uid, unit in episode.sim.units.items():
+            pose = unit.drive.pose
+            agent = episode.agents[uid]
+            task = agent.task.task_id if agent.task is not None else None
+            moving = not unit.drive.idle
+            episode.record.units.append(
+                UnitSample(now, uid, pose.x, pose.y, pose.yaw, moving, uid in frozen, task)
+            )
+
+
+class UnitPublisher(_Observer):
+    """The units, their plans and freezes in the map server's live viewer."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+
+    def observe(self, episode: Episode) -> None:
+        now, frozen = episode.report.now, episode.report.frozen
+        states = []
+        for uid, unit in episode.sim.units.items():
+            plan = episode.agents[uid].navigator.last_plan
+            path = tuple(plan.path) if plan is not None and plan.found else ()
+            states.append(UnitState(uid, now, unit.drive.pose, path, uid in frozen))
+        episode.client.publish_units(states)
+
+
+class GridRecorder(_Observer):
+    """The shared costmap and occupancy every ``every_s`` [s] (the replay)."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+
+    def observe(self, episode: Episode) -> None:
+        costs = episode.costs
+        occupancy = episode.synced().occupancy().data.copy()
+        episode.record.grids.append(
+            GridSample(episode.report.now, costs.version, costs.data.copy(), occupancy)
+        )
+
+
+@dataclass(frozen=True)
+class StandardObservers:
+    """The observers every run has (module docstring), by name."""
+
+    scans: ScanRecorder
+    plans: PlanChecker
+    freezes: FreezeWatch
+    throughput: Throughput
+    clearing: ClearingWatch
+    map_truth: MapTruthWatch
+    units: UnitRecorder
+    publisher: UnitPublisher
+    grids: GridRecorder
+    objects: ObjectRecorder
+
+    @classmethod
+    def of(cls, episode: Episode) -> StandardObservers:
+        opts = episode.options
+        return cls(
+            scans=ScanRecorder(opts.record_scans_s),
+            plans=PlanChecker(),
+            freezes=FreezeWatch(),
+            throughput=Throughput(episode),
+            clearing=ClearingWatch(opts.map_read_s),
+            map_truth=MapTruthWatch(episode, opts.map_read_s),
+            units=UnitRecorder(opts.record_units_s),
+            publisher=UnitPublisher(opts.record_units_s),
+            grids=GridRecorder(opts.record_grids_s),
+            objects=ObjectRecorder(opts.record_units_s),
+        )
+
+    def all(self) -> tuple[Observer, ...]:
+        """In the order they run after a step."""
+        return (
+            self.scans, self.plans, self.freezes, self.throughput, self.clearing,
+            self.map_truth, self.units, self.publisher, self.grids, self.objects,
+        )  # fmt: skip
+
+
+class ProgressReport(_Observer):
+    """Calls ``progress(now, duration)`` [s] after every step (a progress bar)."""
+
+    def __init__(self, progress) -> None:
+        self.progress = progress
+
+    def observe(self, episode: Episode) -> None:
+        self.progress(episode.report.now, episode.setup.duration)
+
+
+def _scan_sample(scan) -> ScanSample:
+    return ScanSample(
+        scan.stamp, scan.unit_id, scan.pose.x, scan.pose.y, scan.pose.yaw, scan.angle_min,
+        scan.angle_increment, scan.range_min, scan.range_max, scan.ranges.astype(np.float32),
+    )  # fmt: skip

@@ -1,0 +1,214 @@
+"""What a scenario run records: the input of ``metrics.json``, ``freezes.json``,
+``trips.json``, ``collisions.json``, ``report.png`` and ``replay.mcap``.
+
+Everything is stamped with sim time [s]; positions are in the map frame [m]. The runner
+appends as it goes; writers only read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import PoseStd
+from scenarios.replay.fused import FusedScans
+
+if TYPE_CHECKING:
+    from fleet.sim import CollisionEvent  # imports pybullet
+
+
+@dataclass(frozen=True)
+class UnitSample:
+    """A unit at a tick: pose (x, y [m], yaw [rad]), commanded motion, frozen, its task."""
+
+    stamp: float
+    unit_id: str
+    x: float
+    y: float
+    yaw: float
+    moving: bool
+    frozen: bool
+    task: str | None
+
+
+@dataclass(frozen=True)
+class PlanSample:
+    """A plan a unit made: its path [m], and the path points lying on cells lethal in
+    ground truth at that time (non-empty: a stale-free plan)."""
+
+    stamp: float
+    unit_id: str
+    path: tuple[tuple[float, float], ...]
+    stale_cells: tuple[tuple[float, float], ...] = ()
+
+    @property
+    def stale_free(self) -> bool:
+        return bool(self.stale_cells)
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    """A scheduled world event: ``kind`` (move, drop, remove, person, breakdown), the
+    object it concerns, where it happened [m] and a sentence for people."""
+
+    stamp: float
+    kind: str
+    object_id: str
+    x: float
+    y: float
+    detail: str
+
+
+@dataclass(frozen=True)
+class ObjectState:
+    """A world object as a scene entity: id, kind, footprint (a box: centre x, y [m],
+    size_x, size_y [m], yaw [rad]; a cylinder: size_x = size_y = diameter), height [m]."""
+
+    object_id: str
+    kind: str
+    x: float
+    y: float
+    size_x: float
+    size_y: float
+    yaw: float
+    height: float
+    round: bool
+
+
+@dataclass(frozen=True)
+class ObjectsSample:
+    """The world's objects at ``stamp`` (recorded whenever they changed)."""
+
+    stamp: float
+    objects: tuple[ObjectState, ...]
+
+
+@dataclass(frozen=True)
+class GridSample:
+    """The shared map at ``stamp`` and ``version``: costs (uint8 Nav2) and occupancy
+    (int8 OccupancyGrid), (height, width), row 0 at the origin's y."""
+
+    stamp: float
+    version: int
+    costs: np.ndarray
+    occupancy: np.ndarray
+
+
+@dataclass(frozen=True)
+class MapTruthSample:
+    """The shared costmap against ground truth at a map read at ``stamp`` [s]
+    (``scenarios.score.map_truth``): phantom and forgotten cells [cells], the share [1] of the
+    reachable floor the map calls unknown."""
+
+    stamp: float
+    phantom_cells: int
+    forgotten_cells: int
+    unknown_share: float
+
+
+@dataclass(frozen=True)
+class ScanSample:
+    """A LiDAR scan as posted: the pose it was sent with and its ranges [m] (float32;
+    inf = no return, NaN = invalid), and the ``pose_std`` it was sent with (None: none)."""
+
+    stamp: float
+    unit_id: str
+    x: float
+    y: float
+    yaw: float
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: np.ndarray
+    pose_std: PoseStd | None = None
+
+
+@dataclass(frozen=True)
+class BlockingCell:
+    """A cell that blocked a frozen unit: where [m], whether it was truly occupied then
+    (ground truth), its p_occ (None unknown), last_observed [s] and the scans (unit,
+    stamp) that last marked it."""
+
+    x: float
+    y: float
+    truly_occupied: bool
+    p_occ: float | None
+    last_observed: float | None
+    marked_by: tuple[tuple[str, float], ...]
+
+
+@dataclass(frozen=True)
+class RecoveryStep:
+    """A recovery action a unit took: stamp [s], action, cause."""
+
+    stamp: float
+    action: str
+    cause: str
+
+
+@dataclass(frozen=True)
+class FreezeRecord:
+    """A freeze (CONTRACT 3): unit, start [s], duration [s], phantom or true block, the
+    blocking cells with their evidence, the recovery actions taken meanwhile, and for a
+    lane freeze the blocked lanes (node-id pairs, sorted) that held the unit
+    (``scenarios.score.lane_evidence``; empty for a path freeze)."""
+
+    unit_id: str
+    start: float
+    duration: float
+    phantom: bool
+    reason: str
+    x: float
+    y: float
+    blocking: tuple[BlockingCell, ...]
+    recovery: tuple[RecoveryStep, ...]
+    lanes: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True)
+class TripRecord:
+    """A completed trip: task ``task_id`` driven by ``unit_id``, ``assigned`` and ``done``
+    [s] sim time, ``ideal_s`` [s] its congestion-free time (``scenarios.score.throughput``; None
+    when the lane graph has no route for it)."""
+
+    task_id: str
+    unit_id: str
+    assigned: float
+    done: float
+    ideal_s: float | None
+
+    @property
+    def actual_s(self) -> float:
+        """[s] from assignment to completion."""
+        return self.done - self.assigned
+
+
+@dataclass
+class RunRecord:
+    """A whole run: identity, the map's geometry, the units' body (radius, height [m];
+    None: the fleet's default ``DriveLimits``), the streams above, and what the run's own
+    map server fused (``fused``; None for a run against an outside server)."""
+
+    scenario: str
+    policy: str
+    seed: int
+    geometry: GridGeometry
+    units: list[UnitSample] = field(default_factory=list)
+    plans: list[PlanSample] = field(default_factory=list)
+    events: list[EventRecord] = field(default_factory=list)
+    objects: list[ObjectsSample] = field(default_factory=list)
+    grids: list[GridSample] = field(default_factory=list)
+    map_truth: list[MapTruthSample] = field(default_factory=list)
+    scans: list[ScanSample] = field(default_factory=list)
+    freezes: list[FreezeRecord] = field(default_factory=list)
+    trips: list[TripRecord] = field(default_factory=list)
+    collisions: list[CollisionEvent] = field(default_factory=list)
+    time_to_clear: dict[str, float | None] = field(default_factory=dict)
+    metrics: dict[str, object] = field(default_factory=dict)
+    unit_radius: float | None = None
+    unit_height: float | None = None
+    fused: FusedScans | None = None

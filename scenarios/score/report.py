@@ -1,0 +1,417 @@
+"""``report.png``: one picture of a run for people.
+
+- Left, the final shared costmap (Nav2 costs: white free, shades of violet graded and
+  inscribed, black lethal, grey unknown) with every freeze where the unit stood (red X
+  phantom, blue circle true block; size grows with duration), every world event
+  (green triangle, labelled E1, E2, ... in time order) and every collision where the unit
+  touched (orange star: the fleet's, yellow diamond: the scenario's; ``fleet.sim``).
+- Top right, a timeline per unit [s]: freezes as bars (red phantom, blue true block),
+  events as dashed green lines under the same labels, collisions as the same stars and
+  diamonds on the unit's row.
+- Middle right, the shared map against ground truth at every map read: phantom and
+  forgotten cells, and the unknown share of the reachable floor
+  (``scenarios.score.report_map_truth``).
+- Bottom right, time to clear [s] per removed (or moved) object, in removal order; one
+  never cleared gets a hatched bar from its removal to the end of the run, "never"; and
+  beside it a table of the throughput metrics (docs/throughput.md; "n/a" where a mean
+  has nothing to average).
+- The title names the scenario, policy and seed, and the key metrics (``collisions``: the
+  fleet's, followed by the scenario's when there were any); one legend for all panels
+  runs along the bottom.
+
+Drawn with matplotlib's object API on an Agg canvas: no display, no global pyplot state
+(safe in sweep worker processes).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+from matplotlib.artist import Artist
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
+from mapserver.store.atomic import atomic_output
+from scenarios.run.record import EventRecord, FreezeRecord, RunRecord
+from scenarios.score.report_map_truth import draw_map_truth
+
+FIGURE_INCHES = (16.0, 9.0)
+DPI = 100  # -> 1600 x 900 px
+TITLE_FIT_CHARS = 170  # a title line longer than this is set smaller, to fit the width
+PHANTOM_COLOR = "#d62728"
+TRUE_BLOCK_COLOR = "#1f77b4"
+EVENT_COLOR = "#2ca02c"
+CLEARED_COLOR = "#17becf"
+NEVER_COLOR = "#7f7f7f"
+# CollisionEvent.cause -> (colour, marker, size [pt^2], legend label)
+COLLISION_STYLE = {
+    "fleet": ("#ff7f0e", "*", 220.0, "collision, fleet"),
+    "scenario": ("#ffd92f", "D", 80.0, "collision, scenario"),
+}
+
+REMOVAL_KINDS = ("remove", "move")  # events after which an object's old place must clear
+
+# (metrics key, label, format) shown in the title, in this order, when present.
+TITLE_METRICS = (
+    ("phantom_freezes", "phantom freezes", "{:d}"),
+    ("phantom_freeze_seconds", "phantom freeze time", "{:.1f} s"),
+    ("true_block_freezes", "true blocks", "{:d}"),
+    ("stale_free_plans", "stale-free plans", "{:d}"),
+    ("collisions", "collisions", "{:d}"),
+    ("tasks_completed", "tasks done", "{:d}"),
+    ("replans", "replans", "{:d}"),
+    ("deadlocks", "deadlocks", "{:d}"),
+    ("sim_seconds", "sim", "{:.0f} s"),
+)
+
+# (metrics key, label, format) of the throughput table; ``wait_s`` rows follow.
+THROUGHPUT_METRICS = (
+    ("trips_per_unit_hour", "trips per unit-hour", "{:.1f}"),
+    ("ideal_trip_s", "ideal trip (mean)", "{:.1f} s"),
+    ("trip_time_ratio", "actual / ideal trip", "{:.2f}"),
+    ("fleet_efficiency", "fleet efficiency", "{:.1%}"),
+    ("moving_share", "moving, with a task", "{:.1%}"),
+    ("mean_speed_moving", "mean speed moving", "{:.2f} m/s"),
+)
+
+
+def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
+    """Draw ``record`` as ``report.png`` (1600 x 900 px) at ``path`` atomically."""
+    figure = Figure(figsize=FIGURE_INCHES, dpi=DPI, layout="constrained")
+    FigureCanvasAgg(figure)
+    grid = figure.add_gridspec(3, 2, width_ratios=(1.15, 1.0), height_ratios=(1.1, 0.8, 1.0))
+    end = run_end(record)
+    _draw_map(figure.add_subplot(grid[:, 0]), record)
+    _draw_timeline(figure.add_subplot(grid[0, 1]), record, end)
+    draw_map_truth(figure.add_subplot(grid[1, 1]), record, end)
+    bottom = grid[2, 1].subgridspec(1, 2, width_ratios=(1.6, 1.0))
+    _draw_time_to_clear(figure.add_subplot(bottom[0, 0]), record, end)
+    _draw_throughput(figure.add_subplot(bottom[0, 1]), record)
+    text = title(record)
+    longest = max(len(line) for line in text.split("\n"))
+    figure.suptitle(
+        text, fontsize=13 if longest <= TITLE_FIT_CHARS else 13 * TITLE_FIT_CHARS / longest
+    )
+    _legend(figure, record)
+    with atomic_output(path) as f:
+        figure.savefig(f, format="png", dpi=DPI)
+    return Path(path)
+
+
+def title(record: RunRecord) -> str:
+    """Two lines: scenario, policy and seed; then the key metrics that the record has."""
+    head = f"{record.scenario}  |  policy {record.policy}  |  seed {record.seed}"
+    shown = []
+    for key, label, fmt in TITLE_METRICS:
+        value = record.metrics.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            value = int(value) if fmt == "{:d}" else float(value)
+            shown.append(f"{label} {fmt.format(value)}" + _scenario_share(record, key))
+    return head + ("\n" + "  ·  ".join(shown) if shown else "")
+
+
+def _scenario_share(record: RunRecord, key: str) -> str:
+    """After the fleet's ``collisions``: the scenario's, when there were any."""
+    extra = record.metrics.get("scenario_collisions")
+    if key != "collisions" or not isinstance(extra, int) or isinstance(extra, bool) or not extra:
+        return ""
+    return f" (+{extra} scenario)"
+
+
+def run_end(record: RunRecord) -> float:
+    """[s] the last moment the run covers: ``sim_seconds`` or the latest stamp recorded."""
+    stamps = [0.0]
+    sim_seconds = record.metrics.get("sim_seconds")
+    if isinstance(sim_seconds, int | float):
+        stamps.append(float(sim_seconds))
+    stamps += [f.start + f.duration for f in record.freezes]
+    stamps += [c.time for c in record.collisions]
+    streams = (record.units, record.events, record.grids, record.plans, record.scans,
+               record.map_truth)  # fmt: skip
+    for stream in streams:
+        if stream:
+            stamps.append(max(s.stamp for s in stream))
+    return max(stamps)
+
+
+def cost_colormap() -> ListedColormap:
+    """256 colours indexed by Nav2 cost (see the module docstring)."""
+    table = np.ones((256, 4))
+    graded = np.linspace(0.0, 1.0, int(MAX_GRADED))[:, None]
+    light, dark = np.array([0.95, 0.93, 0.99, 1.0]), np.array([0.66, 0.58, 0.82, 1.0])
+    table[1 : int(MAX_GRADED) + 1] = light + graded * (dark - light)
+    table[int(FREE)] = (1.0, 1.0, 1.0, 1.0)
+    table[int(INSCRIBED)] = (0.45, 0.36, 0.62, 1.0)
+    table[int(LETHAL)] = (0.08, 0.08, 0.10, 1.0)
+    table[int(UNKNOWN)] = (0.78, 0.78, 0.78, 1.0)
+    return ListedColormap(table, name="nav2_costs")
+
+
+def _draw_map(ax: Axes, record: RunRecord) -> None:
+    g = record.geometry
+    xmin, ymin, xmax, ymax = g.bounds
+    if record.grids:
+        final = max(record.grids, key=lambda s: s.stamp)
+        ax.imshow(
+            final.costs,
+            cmap=cost_colormap(),
+            vmin=0,
+            vmax=255,
+            origin="lower",
+            extent=(xmin, xmax, ymin, ymax),
+            interpolation="nearest",
+        )
+        ax.set_title(f"final costmap at {final.stamp:.1f} s, freezes, events and collisions")
+    else:
+        ax.text(0.5, 0.5, "no map recorded", ha="center", va="center", transform=ax.transAxes)
+        ax.set_title("freezes, events and collisions")
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    for phantom in (True, False):
+        group = [f for f in record.freezes if f.phantom == phantom]
+        ax.scatter(
+            [f.x for f in group],
+            [f.y for f in group],
+            s=[_marker_area(f) for f in group],
+            c=_FREEZE_STYLE[phantom][0],
+            marker=_FREEZE_STYLE[phantom][1],
+            edgecolors="white",
+            linewidths=1.0,
+            zorder=4,
+        )
+    events = _numbered_events(record)
+    ax.scatter(
+        [e.x for _, e in events],
+        [e.y for _, e in events],
+        s=90,
+        c=EVENT_COLOR,
+        marker="^",
+        edgecolors="black",
+        linewidths=0.6,
+        zorder=3,
+    )
+    for label, event in events:
+        ax.annotate(
+            f"{label} {event.kind} {event.object_id}",
+            (event.x, event.y),
+            xytext=(6, 6),
+            textcoords="offset points",
+            fontsize=8,
+            zorder=5,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": EVENT_COLOR, "alpha": 0.85},
+        )
+    for cause, group in _collisions_by_cause(record):
+        _scatter_collisions(ax, cause, [c.x for c in group], [c.y for c in group])
+
+
+def _collisions_by_cause(record: RunRecord) -> list[tuple[str, list]]:
+    """The run's collisions by cause (``COLLISION_STYLE`` order; unknown causes drawn as
+    the fleet's)."""
+    groups: dict[str, list] = {cause: [] for cause in COLLISION_STYLE}
+    for c in record.collisions:
+        groups[c.cause if c.cause in COLLISION_STYLE else "fleet"].append(c)
+    return list(groups.items())
+
+
+def _scatter_collisions(ax: Axes, cause: str, xs: list[float], ys: list[float]) -> None:
+    color, marker, size, _ = COLLISION_STYLE[cause]
+    ax.scatter(xs, ys, s=size, c=color, marker=marker, edgecolors="black", linewidths=0.8, zorder=6)
+
+
+def _numbered_events(record: RunRecord) -> list[tuple[str, EventRecord]]:
+    """The events in time order, labelled E1, E2, ... (the same labels in both panels)."""
+    events = sorted(record.events, key=lambda e: e.stamp)
+    return [(f"E{i}", event) for i, event in enumerate(events, start=1)]
+
+
+_FREEZE_STYLE = {True: (PHANTOM_COLOR, "X"), False: (TRUE_BLOCK_COLOR, "o")}  # colour, marker
+
+
+def _legend(figure: Figure, record: RunRecord) -> None:
+    """One legend for all panels, along the bottom: freezes, events, and the cost colours."""
+    phantom = sum(1 for f in record.freezes if f.phantom)
+    handles: list[Artist] = [
+        Line2D(
+            [],
+            [],
+            color=PHANTOM_COLOR,
+            marker="X",
+            markersize=10,
+            linestyle="none",
+            label=f"phantom freeze ({phantom})",
+        ),
+        Line2D(
+            [],
+            [],
+            color=TRUE_BLOCK_COLOR,
+            marker="o",
+            markersize=9,
+            linestyle="none",
+            label=f"true-block freeze ({len(record.freezes) - phantom})",
+        ),
+        Line2D(
+            [],
+            [],
+            color=EVENT_COLOR,
+            marker="^",
+            markersize=9,
+            linestyle="--",
+            label=f"event ({len(record.events)})",
+        ),
+    ]
+    for cause, group in _collisions_by_cause(record):
+        color, marker, size, label = COLLISION_STYLE[cause]
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=color,
+                marker=marker,
+                markeredgecolor="black",
+                markersize=12 if marker == "*" else 8,
+                linestyle="none",
+                label=f"{label} ({len(group)})",
+            )
+        )
+    colors = cost_colormap().colors
+    for cost, label in (
+        (FREE, "free"),
+        (MAX_GRADED // 2, "inflated"),
+        (INSCRIBED, "inscribed"),
+        (LETHAL, "lethal"),
+        (UNKNOWN, "unknown"),
+    ):
+        handles.append(Patch(facecolor=colors[int(cost)], edgecolor="0.5", label=label))
+    figure.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=10)
+
+
+def _marker_area(freeze: FreezeRecord) -> float:
+    """[pt^2] a freeze's marker: 60 for a short one, growing with duration, at most 400."""
+    return min(60.0 + 20.0 * freeze.duration, 400.0)
+
+
+def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
+    units = sorted(
+        {u.unit_id for u in record.units}
+        | {f.unit_id for f in record.freezes}
+        | {c.unit_id for c in record.collisions},
+        key=_natural_key,
+    )
+    row = {unit: i for i, unit in enumerate(units)}
+    for freeze in record.freezes:
+        color = PHANTOM_COLOR if freeze.phantom else TRUE_BLOCK_COLOR
+        ax.broken_barh(
+            [(freeze.start, max(freeze.duration, end * 2e-3))],
+            (row[freeze.unit_id] - 0.35, 0.7),
+            facecolors=color,
+        )
+    for label, event in _numbered_events(record):
+        ax.axvline(event.stamp, color=EVENT_COLOR, linestyle="--", linewidth=1.0)
+        ax.text(
+            event.stamp,
+            1.01,
+            label,
+            ha="center",
+            va="bottom",
+            fontsize=8,
+            color="darkgreen",
+            transform=ax.get_xaxis_transform(),
+        )
+    for cause, group in _collisions_by_cause(record):
+        _scatter_collisions(ax, cause, [c.time for c in group], [row[c.unit_id] for c in group])
+    if not units:
+        ax.text(0.5, 0.5, "no units recorded", ha="center", va="center", transform=ax.transAxes)
+    ax.set_yticks(range(len(units)), units, fontsize=8 if len(units) > 12 else 9)
+    ax.set_ylim(max(len(units), 1) - 0.5, -0.5)
+    ax.set_xlim(0.0, max(end, 1.0))
+    ax.set_xlabel("sim time [s]")
+    ax.set_title("freezes, events and collisions per unit", pad=16)
+    ax.grid(axis="x", alpha=0.3)
+
+
+def _draw_time_to_clear(ax: Axes, record: RunRecord, end: float) -> None:
+    ax.set_title("time to clear per removed object")
+    ax.set_ylabel("seconds from removal")
+    if not record.time_to_clear:
+        ax.text(0.5, 0.5, "no removal events", ha="center", va="center", transform=ax.transAxes)
+        ax.set_xticks([])
+        return
+    removed_at = {  # the last event that took each object from its place
+        e.object_id: e.stamp
+        for e in sorted(record.events, key=lambda e: e.stamp)
+        if e.kind in REMOVAL_KINDS
+    }
+    objects = sorted(record.time_to_clear, key=lambda o: (removed_at.get(o, 0.0), o))
+    finite = [v for v in record.time_to_clear.values() if v is not None]
+    for i, obj in enumerate(objects):
+        seconds = record.time_to_clear[obj]
+        if seconds is None:
+            height = end - removed_at[obj] if obj in removed_at else max(finite, default=1.0)
+            ax.bar(i, height, color="none", edgecolor=NEVER_COLOR, hatch="//")
+            ax.annotate(
+                "never",
+                (i, height),
+                xytext=(0, 3),
+                textcoords="offset points",
+                ha="center",
+                fontsize=9,
+                color=NEVER_COLOR,
+                fontweight="bold",
+            )
+        else:
+            ax.bar(i, seconds, color=CLEARED_COLOR)
+            ax.annotate(
+                f"{seconds:.2f} s",
+                (i, seconds),
+                xytext=(0, 3),
+                textcoords="offset points",
+                ha="center",
+                fontsize=9,
+            )
+    ax.set_xticks(range(len(objects)), objects, fontsize=9, rotation=30 if len(objects) > 6 else 0)
+    ax.margins(y=0.15)
+    ax.grid(axis="y", alpha=0.3)
+
+
+def throughput_rows(record: RunRecord) -> list[tuple[str, str]]:
+    """(label, value) rows of the throughput table, for the keys the record has."""
+    rows = []
+    for key, label, fmt in THROUGHPUT_METRICS:
+        if key in record.metrics:
+            value = record.metrics[key]
+            rows.append((label, "n/a" if value is None else fmt.format(value)))
+    wait = record.metrics.get("wait_s")
+    if isinstance(wait, dict):
+        rows += [(f"standing, {cause}", f"{seconds:.1f} s") for cause, seconds in wait.items()]
+    return rows
+
+
+def _draw_throughput(ax: Axes, record: RunRecord) -> None:
+    ax.set_axis_off()
+    ax.set_title("throughput")
+    rows = throughput_rows(record)
+    if not rows:
+        ax.text(0.5, 0.5, "no throughput metrics", ha="center", va="center")
+        return
+    table = ax.table(cellText=rows, colWidths=(0.7, 0.3), loc="upper center", edges="horizontal")
+    table.auto_set_font_size(False)
+    table.set_fontsize(9)
+    table.scale(1.0, 1.3)
+    for (_, col), cell in table.get_celld().items():
+        cell.set_text_props(ha="left" if col == 0 else "right")
+
+
+def _natural_key(text: str) -> list[int | str]:
+    """Sort key that puts ``u2`` before ``u10``."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]

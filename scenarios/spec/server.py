@@ -1,0 +1,125 @@
+"""The ``map_server`` section of a scenario: the map server's settings for a run.
+
+The section uses the server config's own names (``policy``, ``sensor_model``, ``decay``,
+``inflation``, ``max_clearing_range``) plus ``resolution`` [m/cell]; the grid covers the
+whole floor from origin (0, 0). It is checked by building the server's ``Settings``
+through ``mapserver.service.settings.load_settings``, never by rules of its own: the server's
+first problem becomes a ScenarioError at ``map_server.<its field>``. Every value is
+pinned (defaults filled in, ``inflation.inscribed_radius`` defaulting to the units'
+radius, as Nav2 derives it from the footprint), so ``FLEETMAP_*`` variables cannot
+change a run.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from fleet.layout import Layout
+from fleet.unit import DriveLimits
+from mapserver.core.sensor_model import Policy
+from mapserver.service.settings import (
+    DecaySettings,
+    GridSettings,
+    InflationSettings,
+    SensorModelSettings,
+    Settings,
+    SettingsError,
+    load_settings,
+)
+from scenarios.spec.yaml_lines import Document, Fields, field_path
+
+DEFAULT_RESOLUTION_M = 0.1
+MAX_GRID_CELLS = 25_000_000
+"""Largest map grid a scenario may ask for (the server keeps ~20 bytes per cell)."""
+MAP_SERVER_KEYS = (
+    "policy",
+    "resolution",
+    "sensor_model",
+    "decay",
+    "inflation",
+    "max_clearing_range",
+)
+MAP_SERVER_SECTIONS = {
+    "sensor_model": SensorModelSettings,
+    "decay": DecaySettings,
+    "inflation": InflationSettings,
+}
+
+
+@dataclass(frozen=True)
+class MapServerSpec:
+    """The map server a run uses: every value the scenario pins (defaults filled in).
+
+    grid: the whole floor at the scenario's resolution, origin (0, 0).
+    """
+
+    policy: Policy
+    grid: GridSettings
+    sensor_model: SensorModelSettings
+    decay: DecaySettings
+    inflation: InflationSettings
+    max_clearing_range: float | None = None
+
+    def overrides(self) -> dict[str, Any]:
+        """Settings overrides for ``load_settings`` (nested mappings): the policy, grid,
+        sensor model, decay, inflation and clearing range, complete, so neither the
+        environment nor a config file can change a run."""
+        out: dict[str, Any] = {
+            "policy": self.policy.value,
+            "grid": self.grid.model_dump(),
+            "sensor_model": self.sensor_model.model_dump(),
+            "decay": self.decay.model_dump(),
+            "inflation": self.inflation.model_dump(),
+        }
+        if self.max_clearing_range is not None:
+            out["max_clearing_range"] = self.max_clearing_range
+        return out
+
+    def settings(self, extra: Mapping[str, Any] | None = None) -> Settings:
+        """Server ``Settings`` with these values, plus ``extra`` overrides (``data_dir``,
+        ``port``, ... as ``load_settings`` takes them)."""
+        return load_settings(None, {**self.overrides(), **(extra or {})})
+
+
+def parse_map_server(doc: Document, f: Fields, layout: Layout, drive: DriveLimits) -> MapServerSpec:
+    """The map server section, checked by building the server's own Settings."""
+    resolution = f.number("resolution", DEFAULT_RESOLUTION_M, unit="metres", low=0.01, high=1.0)
+    width = math.ceil(layout.width / resolution - 1e-9)
+    height = math.ceil(layout.height / resolution - 1e-9)
+    if width * height > MAX_GRID_CELLS:
+        raise doc.error(
+            f.at("resolution"),
+            f"gives a {width} x {height} grid, more than {MAX_GRID_CELLS} cells",
+            resolution,
+        )
+    overrides: dict[str, Any] = {
+        "policy": f.get("policy", Policy.DECAY.value),
+        "grid": {"width": width, "height": height, "resolution": resolution},
+        "max_clearing_range": f.get("max_clearing_range"),
+    }
+    for name, section in MAP_SERVER_SECTIONS.items():
+        values = section().model_dump()
+        if name == "inflation":  # Nav2 derives it from the footprint: so do we
+            values["inscribed_radius"] = drive.radius
+        values.update(f.fields(name, section.model_fields).data)
+        overrides[name] = values
+    try:
+        settings = load_settings(None, overrides)
+    except SettingsError as exc:
+        name, _, detail = exc.problems[0].partition(": ")
+        path = field_path(name)
+        if not path or path[0] not in MAP_SERVER_KEYS:
+            where = f.at("resolution") if path[:1] == ("grid",) else f.path
+            raise doc.error(where, exc.problems[0]) from None
+        raise doc.error((*f.path, *path), detail) from None
+    return MapServerSpec(
+        policy=settings.policy,
+        grid=settings.grid,
+        sensor_model=settings.sensor_model,
+        decay=settings.decay,
+        inflation=settings.inflation,
+        max_clearing_range=settings.max_clearing_range,
+    )

@@ -1,0 +1,154 @@
+"""A sweep's outputs: ``results.csv`` (one row per run) and ``tradeoff.png``.
+
+results.csv columns: ``scenario`` (file stem), ``policy``, ``seed``, one column per
+swept parameter (its dotted key), every metrics.json key (CONTRACT section 3 first, then
+any other key in first-seen order; ``scenario``/``policy``/``seed`` are not repeated),
+then ``status`` (``ok``/``error``), ``error``, ``run_wall_seconds`` [s] and ``out_dir``.
+Lists are joined with ``;`` (a null item is ``null``); a missing value is empty.
+
+tradeoff.png: phantom freeze seconds [s] (y) against stale-free plans (x), one point per
+successful run, coloured by policy; one subplot per swept parameter with each point
+labelled by its value (one plot when the grid is empty).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from mapserver.store.atomic import atomic_output
+from scenarios.sweep.parallel import RunResult
+from scenarios.sweep.sweep_file import Sweep
+
+__all__ = [
+    "CONTRACT_METRICS",
+    "cell_text",
+    "result_columns",
+    "result_rows",
+    "write_csv",
+    "write_plot",
+]
+
+RESULTS_FILENAME = "results.csv"
+PLOT_FILENAME = "tradeoff.png"
+CONTRACT_METRICS = (
+    "scenario",
+    "policy",
+    "seed",
+    "units",
+    "sim_seconds",
+    "wall_seconds",
+    "tasks_completed",
+    "phantom_freezes",
+    "phantom_freeze_seconds",
+    "true_block_freezes",
+    "stale_free_plans",
+    "collisions",
+    "time_to_clear_s",
+    "replans",
+    "deadlocks",
+    "scans_fused",
+)
+RUN_KEYS = ("scenario", "policy", "seed")
+TAIL_COLUMNS = ("status", "error", "run_wall_seconds", "out_dir")
+POLICY_COLOURS = {"decay": "tab:blue", "binary": "tab:orange", "sticky": "tab:red"}
+
+
+def result_columns(sweep: Sweep, results: Sequence[RunResult]) -> list[str]:
+    """The CSV header (module docstring)."""
+    metrics = [k for k in CONTRACT_METRICS if k not in RUN_KEYS]
+    for result in results:
+        metrics += [k for k in result.metrics if k not in metrics and k not in RUN_KEYS]
+    return [*RUN_KEYS, *sweep.parameter_names, *metrics, *TAIL_COLUMNS]
+
+
+def result_rows(sweep: Sweep, results: Sequence[RunResult]) -> list[dict[str, str]]:
+    """One CSV row (column -> text) per result, in the order given."""
+    columns = result_columns(sweep, results)
+    rows = []
+    for result in results:
+        run = result.run
+        values: dict[str, Any] = {**result.metrics, **dict(run.parameters)}
+        values |= {
+            "scenario": run.name,
+            "policy": run.policy,
+            "seed": run.seed,
+            "status": result.status,
+            "error": result.error,
+            "run_wall_seconds": round(result.wall_seconds, 3),
+            "out_dir": str(result.out_dir),
+        }
+        rows.append({c: cell_text(values.get(c)) for c in columns})
+    return rows
+
+
+def write_csv(sweep: Sweep, results: Sequence[RunResult], path: Path) -> None:
+    """``results.csv`` at ``path`` (written atomically)."""
+    columns = result_columns(sweep, results)
+    rows = result_rows(sweep, results)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(Path(path)) as f:
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        f.write(text.getvalue().encode())
+
+
+def write_plot(sweep: Sweep, results: Sequence[RunResult], path: Path) -> None:
+    """``tradeoff.png`` at ``path`` (module docstring), with matplotlib's Agg backend."""
+    from matplotlib.figure import Figure
+
+    ok = [r for r in results if r.status == "ok"]
+    panels: list[str | None] = list(sweep.parameter_names) or [None]
+    fig = Figure(figsize=(5.5 * len(panels), 4.5), dpi=100)
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    policies = list(dict.fromkeys([*sweep.policies, *(r.run.policy for r in ok)]))
+    for ax, name in zip(axes, panels, strict=True):
+        for policy in policies:
+            points = [r for r in ok if r.run.policy == policy]
+            xs = [_number(r.metrics.get("stale_free_plans")) for r in points]
+            ys = [_number(r.metrics.get("phantom_freeze_seconds")) for r in points]
+            ax.scatter(xs, ys, label=policy, color=POLICY_COLOURS.get(policy), alpha=0.8)
+            if name is not None:
+                params = [dict(r.run.parameters)[name] for r in points]
+                for x, y, value in zip(xs, ys, params, strict=True):
+                    ax.annotate(str(value), (x, y), textcoords="offset points", xytext=(4, 4),
+                                fontsize=7)  # fmt: skip
+        ax.set_xlabel("stale-free plans")
+        ax.set_ylabel("phantom freeze seconds [s]")
+        ax.set_title(name if name is not None else "all runs", fontsize=9)
+        ax.grid(True, alpha=0.3)
+        if policies:
+            ax.legend(title="policy", fontsize=8)
+    failed = len(results) - len(ok)
+    fig.suptitle(
+        f"Trade-off per run ({len(ok)} ok" + (f", {failed} failed)" if failed else ")"),
+        fontsize=10,
+    )
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(Path(path)) as f:
+        fig.savefig(f, format="png")
+
+
+def _number(value: Any) -> float:
+    """A metric as a float for plotting (NaN when absent or not a number)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def cell_text(value: Any) -> str:
+    """A CSV cell: lists joined with ``;``, None empty (``null`` inside lists)."""
+    if value is None:
+        return ""
+    if isinstance(value, list | tuple):
+        return ";".join("null" if v is None else str(v) for v in value)
+    if isinstance(value, bool):
+        return str(value).lower()
+    return str(value)
