@@ -17,7 +17,7 @@ descriptor limit it cannot even accept one. So a connection that opens when
 uvicorn answers the new one 503.
 
 This subclasses uvicorn's ``H11Protocol`` and reads its h11 connection's state (uvicorn
-has no hook for it); ``tests/test_server_limits.py`` checks it against the installed
+has no hook for it); ``tests/api/test_server_limits.py`` checks it against the installed
 uvicorn.
 """
 

@@ -29,7 +29,7 @@ from scenarios.spec.scenario import (
     task_stream,
 )
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 SHIPPED = (
     "static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift",
     "hundred_units", "tiny", "dropouts",

@@ -271,7 +271,7 @@ _WRITER = textwrap.dedent(
 @pytest.mark.parametrize("synchronous", ["FULL", "OFF"])
 def test_every_acknowledged_scan_survives_sigkill(tmp_path: Path, synchronous: str) -> None:
     path = tmp_path / "j.sqlite3"
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     child = subprocess.Popen(
         [sys.executable, "-c", _WRITER, str(path), synchronous],
         stdout=subprocess.PIPE,
