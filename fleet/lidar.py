@@ -11,7 +11,7 @@ closer than ``start`` (inside the body) is never seen. The rays are fixed in the
 body frame and cast with ``parentObjectUniqueId``, so Bullet moves them with the body and
 nothing is rebuilt per scan.
 
-Ranges follow ROS REP 117 (CONTRACT 2.1): a miss (no surface within ``range_max``) reads
+Ranges follow ROS REP 117 (docs/http-api.md 2.1): a miss (no surface within ``range_max``) reads
 ``+inf``. Sensor flaws, applied in this order with the LiDAR's own generator:
 
 1. range noise: every return gets gaussian noise of std ``range_noise`` [m] (kept >= 0);

@@ -42,7 +42,7 @@ class PoseNoise:
 
     @property
     def pose_std(self) -> PoseStd:
-        """The uncertainty a unit reports with this noise (CONTRACT 2.1 ``pose_std``)."""
+        """The uncertainty a unit reports with this noise (docs/http-api.md 2.1 ``pose_std``)."""
         return PoseStd(xy=self.std_xy, yaw=self.std_yaw)
 
 

@@ -2,7 +2,7 @@
 
 ``ScanPoster.post`` sends one tick's scans as one ``POST /v1/scans/batch`` (split into
 requests of at most ``max_batch`` scans, the server's ``limits.max_batch``). Stamps are
-the sim's, so the server must not have seen later stamps of these units (CONTRACT 2.1:
+the sim's, so the server must not have seen later stamps of these units (docs/http-api.md 2.1:
 409).
 
 - ``in_flight = 0`` (default): ``post`` waits for the acks and returns them, one per scan

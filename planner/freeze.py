@@ -1,4 +1,4 @@
-"""Freezes, as CONTRACT section 3 defines them, and how they are classified.
+"""Freezes, as docs/files.md defines them, and how they are classified.
 
 - A *freeze*: a unit with a task commands no motion for at least ``MIN_FREEZE_S`` (1 s)
   because no admissible path or lane was available. Standing still for any other reason
@@ -40,7 +40,7 @@ from mapserver.core.queries import query_segments
 if TYPE_CHECKING:
     from planner.lane_graph import LaneGraph
 
-MIN_FREEZE_S = 1.0  # [s] CONTRACT 3
+MIN_FREEZE_S = 1.0  # [s] docs/files.md
 
 Point = tuple[float, float]
 Lane = tuple[str, str]

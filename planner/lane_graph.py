@@ -78,7 +78,7 @@ NODE_KINDS = ("junction", "station", "waypoint")
 
 class SegmentReading(Protocol):
     """One segment of the map as the lane graph reads it (``MapClient``'s ``SegmentInfo``,
-    CONTRACT 2.5): max_cost 0..255 (None: no known cell), blocked (a cell on it is lethal
+    docs/http-api.md 2.5): max_cost 0..255 (None: no known cell), blocked (a cell on it is lethal
     or inscribed), unknown_fraction 0..1 of its cells, first_blocked (x, y) [m] or None."""
 
     @property
@@ -92,7 +92,7 @@ class SegmentReading(Protocol):
 
 
 class SegmentQuerier(Protocol):
-    """What the lane graph needs of the map: ``MapClient.query_segments`` (CONTRACT 2.5)."""
+    """What the lane graph needs of the map: ``MapClient.query_segments`` (docs/http-api.md 2.5)."""
 
     def query_segments(self, segments: Sequence[Sequence[float]]) -> Sequence[SegmentReading]:
         """One reading per segment ``(x0, y0, x1, y1)`` [m], in order."""

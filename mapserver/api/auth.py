@@ -1,4 +1,4 @@
-"""Bearer tokens and roles (CONTRACT section 2): ``unit`` posts scans and unit states as
+"""Bearer tokens and roles (docs/http-api.md): ``unit`` posts scans and unit states as
 the units its token lists, ``reader`` reads, ``admin`` does both, as any unit. With no
 tokens configured the server is open (and loopback-only, which the settings and
 ``local_only`` enforce)."""

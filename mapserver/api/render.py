@@ -1,4 +1,4 @@
-"""Grid replies in the three formats of CONTRACT 2.3: json, raw bytes with headers, png."""
+"""Grid replies in the three formats of docs/http-api.md 2.3: json, raw bytes with headers, png."""
 
 from __future__ import annotations
 

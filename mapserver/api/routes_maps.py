@@ -1,4 +1,4 @@
-"""Map and costmap reads (CONTRACT 2.2 and 2.3)."""
+"""Map and costmap reads (docs/http-api.md 2.2 and 2.3)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``POST /v1/plan`` (CONTRACT 2.6): grid A* or Dijkstra on the current costmap.
+"""``POST /v1/plan`` (docs/http-api.md 2.6): grid A* or Dijkstra on the current costmap.
 
 One plan computes at a time (the planner's buffers are the grid's size) on a worker
 thread; up to ``reads.max_queued_plans`` wait for it and more are refused with 429

@@ -1,4 +1,4 @@
-"""Cell and segment queries (CONTRACT 2.4 and 2.5).
+"""Cell and segment queries (docs/http-api.md 2.4 and 2.5).
 
 A query is parsed, computed and encoded on a worker thread under the app's query
 admission (``admission``): the event loop only receives the body and sends the bytes,

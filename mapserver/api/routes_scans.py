@@ -1,4 +1,4 @@
-"""``POST /v1/scans`` and ``POST /v1/scans/batch`` (CONTRACT 2.1)."""
+"""``POST /v1/scans`` and ``POST /v1/scans/batch`` (docs/http-api.md 2.1)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``POST /v1/units`` and ``GET /v1/units``: unit poses, paths and freezes for the viewer
-(a project extension of CONTRACT section 2; ``unit_board`` keeps them)."""
+(a project extension of docs/http-api.md; ``unit_board`` keeps them)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Pydantic models of the HTTP API (CONTRACT section 2), for the OpenAPI schema and replies.
+"""Pydantic models of the HTTP API (docs/http-api.md), for the OpenAPI schema and replies.
 
 Scan bodies are documented with ``ScanIn`` but validated by ``Scan.from_dict``, the one
 validator of scans, so errors read the same from every source.
@@ -35,7 +35,7 @@ class PoseStdIn(BaseModel):
 
 
 class ScanIn(BaseModel):
-    """One planar LiDAR scan (CONTRACT 2.1); ranges follow REP 117."""
+    """One planar LiDAR scan (docs/http-api.md 2.1); ranges follow REP 117."""
 
     unit_id: str = Field(min_length=1)
     stamp: Number = Field(description="[s] time used for freshness and decay")

@@ -114,7 +114,7 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
         help="fuse a recorded scan file (JSONL) into map.yaml + map.pgm + logodds.npy",
         description="Fuse a JSONL scan file offline; writes ROS map_server files and log-odds.",
     )
-    build.add_argument("scans", type=Path, help="scan file, one CONTRACT 2.1 scan per line")
+    build.add_argument("scans", type=Path, help="scan file, one docs/http-api.md 2.1 scan per line")
     build.add_argument("--width", type=int, required=True, help="[cells]")
     build.add_argument("--height", type=int, required=True, help="[cells]")
     build.add_argument("--resolution", type=float, required=True, help="[m/cell]")

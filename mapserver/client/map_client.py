@@ -1,4 +1,4 @@
-"""``MapClient``: typed access to the map server's HTTP API (CONTRACT section 2).
+"""``MapClient``: typed access to the map server's HTTP API (docs/http-api.md).
 
 This module is the one place that knows the server's URLs. ``MapClient`` wraps an
 injected ``httpx.Client`` whose ``base_url`` names the server, so tests pass an
@@ -43,14 +43,14 @@ Wire format notes:
 
 - Scans are sent as JSON. A ``Scan``'s no-return beams go as ``2 * range_max + 1`` (no
   return under REP 117, and strict JSON); a mapping is sent as given, ``Infinity`` tokens
-  included (CONTRACT 2.1 allows them), so bodies are encoded here rather than by httpx,
+  included (docs/http-api.md 2.1 allows them), so bodies are encoded here rather than by httpx,
   which refuses non-finite floats.
 - ``POST /v1/scans/batch`` takes ``{"scans": [scan, ...]}`` and replies
   ``200 {"acks": [{"seq": n, "map_version": v}, ...]}``, one ack per scan in order
-  (this reply shape is the project's extension of CONTRACT 2.1).
+  (this reply shape is the project's extension of docs/http-api.md 2.1).
 - ``POST /v1/units`` and ``GET /v1/units`` (``publish_units``, ``units``) carry units'
   poses, planned paths and freezes for the live viewer: the project's extension of
-  CONTRACT section 2.
+  docs/http-api.md.
 - Grids are fetched as ``format=raw``: row-major bytes, row 0 at the origin's y (the
   bottom row), so ``data[row, col]`` is cell (col, row) of ``GridGeometry``.
 """
@@ -123,7 +123,7 @@ class InvalidRequest(MapRequestError):
 
 
 class MapServerError(_StatusError):
-    """5xx: the server failed (a bug, by CONTRACT section 2)."""
+    """5xx: the server failed (a bug, by docs/http-api.md)."""
 
 
 class MapProtocolError(MapClientError):
@@ -168,7 +168,7 @@ class ScanAck:
 
 @dataclass(frozen=True)
 class MapMeta:
-    """``GET /v1/map/meta`` (CONTRACT 2.2).
+    """``GET /v1/map/meta`` (docs/http-api.md 2.2).
 
     resolution [m/cell]; width, height [cells]; origin_x, origin_y [m] (the outer corner of
     cell (0, 0)), origin_yaw [rad]; frame; stamp [s] (the map's "now", the latest scan
@@ -218,7 +218,7 @@ class CostmapUpdates:
 
     ``full`` is True (and ``patches`` None) when the server no longer holds the asked
     version; the caller then fetches the whole costmap. ``stamp`` [s] is the costmap's
-    stamp if the server sends one (CONTRACT 2.3 does not require it), else None.
+    stamp if the server sends one (docs/http-api.md 2.3 does not require it), else None.
     """
 
     version: int
@@ -229,7 +229,7 @@ class CostmapUpdates:
 
 @dataclass(frozen=True)
 class CellInfo:
-    """One queried point (CONTRACT 2.4).
+    """One queried point (docs/http-api.md 2.4).
 
     x, y [m] as queried; state "free", "occupied", "unknown" or "outside"; p_occ
     (probability, None when unknown or outside); cost (0..255, None outside);
@@ -247,7 +247,7 @@ class CellInfo:
 
 @dataclass(frozen=True)
 class SegmentInfo:
-    """One queried segment (CONTRACT 2.5).
+    """One queried segment (docs/http-api.md 2.5).
 
     max_cost (0..255, None if no known cell); blocked (a cell on it is lethal or
     inscribed); unknown_fraction (0..1 of its cells); first_blocked (x, y) [m] or None.
@@ -261,7 +261,7 @@ class SegmentInfo:
 
 @dataclass(frozen=True)
 class PlanResult:
-    """``POST /v1/plan`` (CONTRACT 2.6).
+    """``POST /v1/plan`` (docs/http-api.md 2.6).
 
     found; path [(x, y) m] from start to goal (empty when not found); length [m]; cost;
     min_clearance [m]; expanded [nodes]; planning_ms [ms]; map_version planned on.
@@ -281,7 +281,7 @@ class PlanResult:
 @dataclass(frozen=True)
 class UnitState:
     """A unit's state as its fleet publishes it for the viewer (``/v1/units``, a project
-    extension of CONTRACT section 2).
+    extension of docs/http-api.md).
 
     unit_id; stamp [s] (a unit's stamps never go backwards); pose: x, y [m] of the unit's
     centre and yaw [rad]; path: the unit's planned path [(x, y) m], empty when it has
@@ -346,7 +346,7 @@ class MapClient:
     # -- scans (2.1)
 
     def post_scan(self, scan: Scan | Mapping[str, Any]) -> ScanAck:
-        """Send one scan (a ``Scan`` or its CONTRACT 2.1 dict as is); durable once acked."""
+        """Send one scan (a ``Scan`` or its docs/http-api.md 2.1 dict as is); durable once acked."""
         reply = self._json("POST", "/v1/scans", body=_scan_body(scan), fast=isinstance(scan, Scan))
         return _ack(reply)
 
@@ -823,7 +823,7 @@ def _same_count(reply: _Fields, key: str, sent: int) -> list[_Fields]:
 
 
 def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
-    """A scan's CONTRACT 2.1 JSON object; a mapping is sent as is (the server validates).
+    """A scan's docs/http-api.md 2.1 JSON object; a mapping is sent as is (the server validates).
 
     A Scan's no-return beams (+inf) are sent as ``2 * range_max + 1``: also "no return"
     under REP 117 (any value above range_max), but strict JSON, which the server parses

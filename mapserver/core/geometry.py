@@ -1,6 +1,6 @@
 """Grid geometry: size, resolution and origin, and conversions between world and cells.
 
-Conventions (CONTRACT.md): one fixed ``map`` frame, x right, y up, metres. Grids are
+Conventions (docs/contract.md): one fixed ``map`` frame, x right, y up, metres. Grids are
 row-major and row 0 is the row at the origin's y (the bottom row, as in ROS
 ``nav_msgs/OccupancyGrid``): ``index = row * width + col``. The origin is the world
 position of the outer corner of cell (0, 0); the map is axis-aligned (origin yaw 0).

@@ -1,7 +1,7 @@
-"""Point and segment queries on the belief grid and the costmap (CONTRACT 2.4 and 2.5).
+"""Point and segment queries on the belief grid and the costmap (docs/http-api.md 2.4 and 2.5).
 
 - Cells: for each world point, its state (free / occupied / unknown, or outside the map),
-  occupancy probability (None when unknown, as CONTRACT 2.4 says, including an observed
+  occupancy probability (None when unknown, as docs/http-api.md 2.4 says, including an observed
   cell whose probability lies between the thresholds), cost, last-observed stamp and age.
 - Segments: for each segment, the highest known cost of the cells it crosses, whether a
   cell on it is lethal or inscribed (``blocked``), the share of its cells that are unknown

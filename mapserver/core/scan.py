@@ -1,4 +1,4 @@
-"""One LiDAR scan (CONTRACT section 2.1) and its validation.
+"""One LiDAR scan (docs/http-api.md 2.1) and its validation.
 
 Range semantics follow ROS REP 117:
 
@@ -119,7 +119,7 @@ class Scan:
         return {**self.to_dict(with_ranges=False), "ranges": self.ranges}
 
     def to_dict(self, with_ranges: bool = True) -> dict[str, Any]:
-        """The CONTRACT 2.1 JSON object (NaN ranges as null, no-return as Infinity);
+        """The docs/http-api.md 2.1 JSON object (NaN ranges as null, no-return as Infinity);
         without ``ranges`` when ``with_ranges`` is False (callers that encode them)."""
         out: dict[str, Any] = {
             "unit_id": self.unit_id,
@@ -139,7 +139,7 @@ class Scan:
 
     @classmethod
     def from_dict(cls, data: Any, max_beams: int = DEFAULT_MAX_BEAMS) -> Scan:
-        """Validate a CONTRACT 2.1 scan object; raises ScanError naming the bad field."""
+        """Validate a docs/http-api.md 2.1 scan object; raises ScanError naming the bad field."""
         if not isinstance(data, Mapping):
             raise ScanError("scan", data, "must be a JSON object")
         unit_id = data.get("unit_id")

@@ -8,7 +8,7 @@ Then ``L`` is clamped to ``[clamp_min, clamp_max]`` so that a wrong cell can rec
 (Thrun, Burgard, Fox, *Probabilistic Robotics*, 2005, table 9.1; Hornung et al.,
 *OctoMap*, Autonomous Robots 2013, eq. 2-4 for the clamping).
 
-Defaults (CONTRACT section 1), in both units:
+Defaults (docs/commands.md), in both units:
 
 - ``p_hit = 0.7``   # = +0.847 log-odds per return
 - ``p_miss = 0.4``  # = -0.405 log-odds per pass-through
@@ -51,7 +51,7 @@ def sigmoid(log_odds: float) -> float:
 
 
 class Policy(StrEnum):
-    """How evidence accumulates and ages (CONTRACT section 1).
+    """How evidence accumulates and ages (docs/commands.md).
 
     - ``decay``: clamped log-odds whose evidence fades toward the prior with time since
       the cell was last observed (the project's default).

@@ -7,7 +7,7 @@ unit decides the time; a scan is refused (422) when its stamp ``s`` is ahead of 
 reference by more than ``max_lead_s`` [s]:
 
 - **the server's wall clock** (``time.time()``, epoch seconds): stamps are simulated
-  seconds from 0 or epoch seconds (CONTRACT 2.1), and neither can be ahead of the
+  seconds from 0 or epoch seconds (docs/http-api.md 2.1), and neither can be ahead of the
   server's wall clock; this bounds the very first scan of an empty map too.
 - **the rest of the fleet**: the lower median of the latest stamps of the units heard
   from among the last ``window_scans`` accepted scans (the scan's own unit included at

@@ -311,7 +311,7 @@ class MapService:
         return self.belief.stamp
 
     def meta(self) -> dict[str, Any]:
-        """CONTRACT 2.2 map metadata."""
+        """docs/http-api.md 2.2 map metadata."""
         g, s = self.geometry, self.settings
         with self._lock:
             version, stamp = self.version, self.belief.stamp
@@ -366,7 +366,7 @@ class MapService:
             return self.version, self.costmap.stamp, self.costmap.patches_since(version)
 
     def cell_columns(self, points: Any, at: float | None = None) -> dict[str, list]:
-        """CONTRACT 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
+        """docs/http-api.md 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
         ``at`` [s] (default: the map's stamp), as columns (``queries.cell_columns``)."""
         return cell_columns(*self._cell_samples(points, at))
 
@@ -387,7 +387,7 @@ class MapService:
         return samples, when
 
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
-        """CONTRACT 2.5 reports on the current costmap, copied under the lock."""
+        """docs/http-api.md 2.5 reports on the current costmap, copied under the lock."""
         with self._lock:
             costs = self.costmap.costs.copy()
         return query_segments(self.geometry, costs, segments)

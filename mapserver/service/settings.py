@@ -95,7 +95,7 @@ class SettingsError(ValueError):
 
 
 class Role(StrEnum):
-    """What a bearer token may do (CONTRACT section 2)."""
+    """What a bearer token may do (docs/http-api.md)."""
 
     UNIT = "unit"  # post scans
     READER = "reader"  # read maps, costmaps, queries

@@ -3,7 +3,7 @@
 One SQLite database file (stdlib ``sqlite3``) in WAL mode holds:
 
 - ``scans``: one row per accepted scan, ``seq`` (INTEGER PRIMARY KEY AUTOINCREMENT: 1, 2,
-  3, ... never reused), ``unit_id``, ``stamp`` [s] and ``body``, the scan's CONTRACT 2.1
+  3, ... never reused), ``unit_id``, ``stamp`` [s] and ``body``, the scan's docs/http-api.md 2.1
   object as compact JSON text (Python's ``json``; a no-return range is written
   ``Infinity``, which the contract accepts as input and ``json.loads`` reads back). The
   journal is the replay log: replaying it in ``seq`` order rebuilds the map bit for bit.
@@ -181,7 +181,7 @@ class RawRow:
 @dataclass(frozen=True)
 class Record:
     """One journaled scan as read: its ``seq``, ``unit_id`` (damaged bytes replaced),
-    ``stamp`` [s], and either ``scan`` (the CONTRACT 2.1 object) or ``problem`` (why it
+    ``stamp`` [s], and either ``scan`` (the docs/http-api.md 2.1 object) or ``problem`` (why it
     cannot be read). ``checksum_ok``: True checked, False failed, None unchecked."""
 
     seq: int
@@ -382,7 +382,7 @@ class Journal:
     def append(self, scans: Sequence[Mapping[str, Any]]) -> list[int]:
         """Journal accepted scans in order, committed before returning; returns their seqs.
 
-        scans: CONTRACT 2.1 scan objects already accepted by ``Scan.from_dict`` (the
+        scans: docs/http-api.md 2.1 scan objects already accepted by ``Scan.from_dict`` (the
             journal reads ``unit_id`` and ``stamp`` [s]; it stores the other fields as JSON
             and ``ranges`` as float64 bytes, null as NaN: encoding 1080 floats as text
             cost more than fusing them).

@@ -1,4 +1,4 @@
-"""Scan files (``*.jsonl``): one CONTRACT 2.1 scan object per line.
+"""Scan files (``*.jsonl``): one docs/http-api.md 2.1 scan object per line.
 
 ``read_scan_file`` validates every line before returning anything, so a caller that
 writes outputs only after it returns never leaves a half-written result behind.

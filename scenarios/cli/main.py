@@ -1,4 +1,4 @@
-"""The ``fleetmap`` command: one entry point, a subcommand per job (CONTRACT section 1)."""
+"""The ``fleetmap`` command: one entry point, a subcommand per job (docs/commands.md)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """``fleetmap plan MAP.yaml --start X,Y --goal X,Y``: plan on a saved map.
 
 The map's occupied cells are inflated as the server's costmap would be (default
-inflation parameters), then searched; ``--json`` prints the CONTRACT 2.6 plan response
+inflation parameters), then searched; ``--json`` prints the docs/http-api.md 2.6 plan response
 (``map_version`` 0: a file has no versions).
 """
 

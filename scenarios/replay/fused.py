@@ -15,7 +15,7 @@ In the MCAP file:
   fleet posts tick by tick, so the stamps never go down along it)::
 
       {"seq": 17,                      # the server journal's seq (fusion order)
-       "scan": {...},                  # CONTRACT 2.1 scan object without "ranges"
+       "scan": {...},                  # docs/http-api.md 2.1 scan object without "ranges"
        "ranges_shuffled": "AAAA..."}   # base64 of the ranges' float64 bytes by plane
 
   Floats in ``scan`` are written as their shortest round-trip decimal, so they read
@@ -61,7 +61,7 @@ FUSED_SCHEMA: dict[str, Any] = {
     },
     "required": ["seq", "scan", "ranges_shuffled"],
 }
-"""JSON schema of a ``/fleetmap/scans`` message (``scan``: CONTRACT 2.1, no ``ranges``)."""
+"""JSON schema of a ``/fleetmap/scans`` message (``scan``: docs/http-api.md 2.1, no ``ranges``)."""
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""``replay.mcap``: a run for Foxglove (CONTRACT 3), and its scans back for ``fleetmap replay``.
+"""``replay.mcap``: a run for Foxglove (docs/files.md), and its scans back for ``fleetmap replay``.
 
 Every message is JSON with a Foxglove JSON schema (``foxglove_schemas``), stamped with sim
 time in nanoseconds (log and publish time alike), written in time order:

@@ -19,7 +19,7 @@ with the same seed are identical step for step. Each ``step``:
    publish, and never change the fleet.
 
 ``finish()`` classifies every freeze phantom or true (planning on the ground-truth
-costmap during it) and assembles the metrics of CONTRACT section 3 into the
+costmap during it) and assembles the metrics of docs/files.md into the
 ``RunRecord``.
 """
 
@@ -369,7 +369,7 @@ class Episode:
 
 
 class CostmapSegments:
-    """Lane readings (``query_segments``, CONTRACT 2.5) worked out on the costmap the
+    """Lane readings (``query_segments``, docs/http-api.md 2.5) worked out on the costmap the
     fleet last read over HTTP, as the server works them out on its own: no request per
     refresh, and none of the map server's time taken from fusing scans."""
 

@@ -152,7 +152,7 @@ class RecoveryStep:
 
 @dataclass(frozen=True)
 class FreezeRecord:
-    """A freeze (CONTRACT 3): unit, start [s], duration [s], phantom or true block, the
+    """A freeze (docs/files.md): unit, start [s], duration [s], phantom or true block, the
     blocking cells with their evidence, the recovery actions taken meanwhile, and for a
     lane freeze the blocked lanes (node-id pairs, sorted) that held the unit
     (``scenarios.score.lane_evidence``; empty for a path freeze)."""

@@ -1,4 +1,4 @@
-"""Time to clear (CONTRACT 3): from an object's removal until the shared costmap no
+"""Time to clear (docs/files.md): from an object's removal until the shared costmap no
 longer holds a lethal cell where the object was."""
 
 from __future__ import annotations

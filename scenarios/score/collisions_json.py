@@ -17,7 +17,7 @@ when it touched (put back to the first touch along its step; where it stood for 
 scenario contact). Times [s] of sim time rounded to 1 ms, positions [m] in the map frame
 to 1 mm.
 
-Metrics (``collision_counts``): ``collisions`` counts the fleet's (CONTRACT 3: a score of
+Metrics (``collision_counts``): ``collisions`` counts the fleet's (docs/files.md: a score of
 the fleet), ``scenario_collisions`` those the scenario caused.
 """
 

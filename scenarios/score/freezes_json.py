@@ -12,7 +12,7 @@ A JSON list, one object per freeze, ordered by start time then unit, keys in thi
      "recovery": [{"stamp": 42.25, "action": "turn_in_place", "cause": "path blocked"}]}
 
 Units: times [s] of sim time, positions [m] in the map frame. ``phantom``: the planner
-that froze the unit finds a way on the ground-truth costmap during the freeze (CONTRACT
+that froze the unit finds a way on the ground-truth costmap during the freeze (docs/files.md
 3; the grid planner for a path freeze, the lane router for a lane freeze:
 ``planner.freeze``); ``true_block`` is its complement. ``p_occ`` and ``last_observed``
 are null for a cell never observed.

@@ -1,4 +1,4 @@
-"""Map against truth (CONTRACT 3): how far the shared costmap is from the ground truth.
+"""Map against truth (docs/files.md): how far the shared costmap is from the ground truth.
 
 At every map read the fleet does, the shared costmap (what the units read) is compared
 cell by cell with the ground-truth costmap (``fleet.ground_truth.GroundTruth``: the

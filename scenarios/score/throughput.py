@@ -55,7 +55,7 @@ AT_NODE_M = 0.1
 """[m] default ``at_node_m``: a unit this close to its start node stands on it (the lane
 coordinator's default ``arrive_tol``)."""
 WAIT_CAUSES = ("traffic", "freeze", "dwell", "breakdown", "turn")
-"""The keys of ``wait_s``; ``turn`` is one beyond the four of CONTRACT section 3."""
+"""The keys of ``wait_s``; ``turn`` is one beyond the four of docs/files.md."""
 
 
 class Agent(Protocol):

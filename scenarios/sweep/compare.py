@@ -1,5 +1,5 @@
 """``fleetmap compare SCENARIO... [--seeds N] [--policies P,...] [--out DIR] [--workers N]``
-(CONTRACT section 1): every scenario x policy x seed, run in parallel by the sweep's
+(docs/commands.md): every scenario x policy x seed, run in parallel by the sweep's
 runner (``scenarios.sweep.parallel``), then one table per scenario
 (``scenarios.sweep.compare_table``).
 

@@ -1,4 +1,4 @@
-"""One number per run for a metric of metrics.json (CONTRACT section 3), as the comparison
+"""One number per run for a metric of metrics.json (docs/files.md), as the comparison
 table and the sweep's Pareto front read them.
 
 A metric is named by its key (``phantom_freeze_seconds``) or, for the map-truth means, by
@@ -45,7 +45,7 @@ def _number(value: Any) -> float | None:
 
 def map_truth_names(runs: Iterable[Mapping[str, Any]]) -> list[str]:
     """The ``map_truth.<name>`` metrics some run of ``runs`` (metrics dicts) reports, in
-    CONTRACT order; empty when no run has map_truth (it is optional here)."""
+    the order of docs/files.md 3; empty when no run has map_truth (it is optional here)."""
     runs = list(runs)
     names = [f"{MAP_TRUTH}.{key}" for key in MAP_TRUTH_KEYS]
     return [n for n in names if any(metric_value(m, n) is not None for m in runs)]

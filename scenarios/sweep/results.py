@@ -1,7 +1,7 @@
 """A sweep's outputs: ``results.csv`` (one row per run) and ``tradeoff.png``.
 
 results.csv columns: ``scenario`` (file stem), ``policy``, ``seed``, one column per
-swept parameter (its dotted key), every metrics.json key (CONTRACT section 3 first, then
+swept parameter (its dotted key), every metrics.json key (docs/files.md first, then
 any other key in first-seen order; ``scenario``/``policy``/``seed`` are not repeated),
 then ``status`` (``ok``/``error``), ``error``, ``run_wall_seconds`` [s] and ``out_dir``.
 Lists are joined with ``;`` (a null item is ``null``); a missing value is empty.

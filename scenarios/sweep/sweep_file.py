@@ -1,4 +1,4 @@
-"""A sweep file and the runs it expands to (``fleetmap sweep``, CONTRACT section 1).
+"""A sweep file and the runs it expands to (``fleetmap sweep``, docs/commands.md).
 
 A sweep file is YAML::
 

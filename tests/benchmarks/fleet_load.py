@@ -100,7 +100,7 @@ class SyntheticUnit:
         return r
 
     def body(self, n: int) -> bytes:
-        """The unit's ``n``-th scan (stamp n * 0.1 s) as CONTRACT 2.1 JSON."""
+        """The unit's ``n``-th scan (stamp n * 0.1 s) as docs/http-api.md 2.1 JSON."""
         stamp = round(n * 0.1, 6)
         x, y, yaw = self.pose(stamp)
         scan = {

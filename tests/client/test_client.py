@@ -38,7 +38,7 @@ GEOMETRY = GridGeometry(width=4, height=3, resolution=0.5, origin_x=-1.0, origin
 
 
 class FakeMapServer:
-    """Answers CONTRACT section 2 requests from a costmap history held in memory.
+    """Answers docs/http-api.md requests from a costmap history held in memory.
 
     ``costs[v]`` is the costmap at version v; updates since v are one bounding-box patch
     per later version holding the *current* costs in that box (as the real server does).

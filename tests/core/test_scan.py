@@ -1,4 +1,4 @@
-"""Scan validation (CONTRACT 2.1) and REP 117 classification."""
+"""Scan validation (docs/http-api.md 2.1) and REP 117 classification."""
 
 import json
 import math

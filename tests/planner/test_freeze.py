@@ -1,4 +1,4 @@
-"""Freeze detection and classification exactly as CONTRACT section 3 defines them."""
+"""Freeze detection and classification exactly as docs/files.md defines them."""
 
 import numpy as np
 import pytest

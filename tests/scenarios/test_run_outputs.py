@@ -1,5 +1,5 @@
 """The writers of a scenario run's outputs: freezes.json, collisions.json, report.png and
-replay.mcap (CONTRACT 3), from a small RunRecord made by hand."""
+replay.mcap (docs/files.md), from a small RunRecord made by hand."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ CONTRACT_KEYS = {
     "trips_per_unit_hour", "ideal_trip_s", "trip_time_ratio", "fleet_efficiency",
     "moving_share", "mean_speed_moving", "wait_s", "map_truth",
 }  # fmt: skip
-WAIT_CAUSES = {"traffic", "freeze", "dwell", "breakdown", "turn"}  # "turn": beyond CONTRACT 3
+WAIT_CAUSES = {"traffic", "freeze", "dwell", "breakdown", "turn"}  # "turn": beyond docs/files.md
 
 
 def run(tmp_path, name, *extra):

@@ -24,7 +24,7 @@ from mapserver.store.journal import (
 
 
 def scan(unit_id: str = "u1", stamp: float = 0.0, n: int = 4) -> dict:
-    """A CONTRACT 2.1 scan object with a return, a no-return and an invalid beam."""
+    """A docs/http-api.md 2.1 scan object with a return, a no-return and an invalid beam."""
     return {
         "unit_id": unit_id,
         "stamp": stamp,
