@@ -142,6 +142,18 @@ class BeliefGrid:
         self._marks = np.zeros(geometry.size, dtype=np.uint8)
         self._touched = np.empty(geometry.size, dtype=np.int64)
         self._fade_cache = np.empty((kernel.FADE_CACHE_SIZE, 3), dtype=np.float64)
+        # The kernel's argument groups (the arrays are only ever updated in place).
+        self._kernel_buffers = kernel.KernelBuffers(
+            self._log_odds, self._last_observed, self._marks, self._touched, self._fade_cache
+        )
+        g, d = geometry, self.decay
+        self._kernel_grid = kernel.KernelGrid(
+            g.width, g.height, g.origin_x, g.origin_y, g.resolution
+        )
+        self._kernel_model = kernel.KernelModel(
+            m.l_hit, m.l_miss, m.l_miss_no_return, m.l0, m.clamp_min, m.clamp_max,
+            POLICY_CODES[self.policy], d.half_life_occupied, d.half_life_free,
+        )  # fmt: skip
         self.stamp = -math.inf  # the latest stamp fused: the map's "now"
         self.scans_fused = 0
 
@@ -154,8 +166,7 @@ class BeliefGrid:
         """Fuse scans in order, exactly as one ``fuse`` each, in one kernel call."""
         if not scans:
             return []
-        m, d = self.sensor_model, self.decay
-        params = np.empty((len(scans), 13), dtype=np.float64)
+        params = np.empty(len(scans), dtype=kernel.SCAN_PARAMS)
         fill_margin, glance_margin = self.fill_margin, self.glance_margin
         for k, scan in enumerate(scans):
             std = scan.pose_std
@@ -179,33 +190,10 @@ class BeliefGrid:
         ranges = np.concatenate([s.ranges for s in scans])
         boxes = np.empty((len(scans), 4), dtype=np.int64)
         cells = np.empty(len(scans), dtype=np.int64)
-        g = self.geometry
         kernel.fuse_batch(
-            self._log_odds,
-            self._last_observed,
-            self._marks,
-            self._touched,
-            self._fade_cache,
-            g.width,
-            g.height,
-            g.origin_x,
-            g.origin_y,
-            g.resolution,
-            ranges,
-            offsets,
-            params,
-            m.l_hit,
-            m.l_miss,
-            m.l_miss_no_return,
-            m.l0,
-            m.clamp_min,
-            m.clamp_max,
-            POLICY_CODES[self.policy],
-            d.half_life_occupied,
-            d.half_life_free,
-            boxes,
-            cells,
-        )
+            self._kernel_buffers, self._kernel_grid, self._kernel_model,
+            ranges, offsets, params, boxes, cells,
+        )  # fmt: skip
         self.stamp = max(self.stamp, max(s.stamp for s in scans))
         self.scans_fused += len(scans)
         return [

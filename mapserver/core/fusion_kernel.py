@@ -27,9 +27,67 @@ per cell) are owned by the caller and reused.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+
+
+class KernelGrid(NamedTuple):
+    """The grid as the kernels see it: width, height [cells], origin [m], resolution [m]."""
+
+    width: int
+    height: int
+    origin_x: float
+    origin_y: float
+    resolution: float
+
+
+class KernelModel(NamedTuple):
+    """The update rule: log-odds of a hit, a pass and a no-return pass, the prior and the
+    clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]."""
+
+    l_hit: float
+    l_miss: float
+    l_miss_no_return: float
+    l0: float
+    clamp_min: float
+    clamp_max: float
+    policy: int
+    half_life_occupied: float
+    half_life_free: float
+
+
+class KernelBuffers(NamedTuple):
+    """The arrays fusion updates, owned by the caller: log_odds (float32, one per cell, flat),
+    last_observed (float64 [s], NaN never), marks (uint8), touched (int64, capacity one per
+    cell), fade_cache (float64 (FADE_CACHE_SIZE, 3))."""
+
+    log_odds: np.ndarray
+    last_observed: np.ndarray
+    marks: np.ndarray
+    touched: np.ndarray
+    fade_cache: np.ndarray
+
+
+SCAN_PARAMS = np.dtype(
+    [
+        ("x", np.float64),  # sensor pose [m], [rad]
+        ("y", np.float64),
+        ("yaw", np.float64),
+        ("angle_min", np.float64),  # [rad]
+        ("angle_increment", np.float64),
+        ("range_min", np.float64),  # [m]
+        ("range_max", np.float64),
+        ("clearing_range", np.float64),  # [m] of no-return beams, <= 0: none
+        ("stamp", np.float64),  # [s]
+        ("var_xy", np.float64),  # pose variances [m^2], [rad^2]
+        ("var_yaw", np.float64),
+        ("fill_margin", np.float64),  # [m] of the fill between beams, <= 0: none
+        ("glance_margin", np.float64),  # [m] of the cut of glancing returns, <= 0: none
+    ]
+)
+"""One scan's parameters for ``fuse_batch``, a record per scan."""
 
 # Marks, weakest first: a cell takes the strongest evidence any beam of the scan gives it.
 MARK_NONE = 0
@@ -142,29 +200,11 @@ def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark, max_cel
 
 
 @njit(cache=True, nogil=True)
-def mark_scan(
-    marks,
-    touched,
-    width,
-    height,
-    origin_x,
-    origin_y,
-    resolution,
-    sensor_x,
-    sensor_y,
-    sensor_yaw,
-    angle_min,
-    angle_increment,
-    ranges,
-    range_min,
-    range_max,
-    clearing_range,
-    fill_margin,
-    glance_margin,
-    box,
-):
+def mark_scan(marks, touched, grid, scan, ranges, box):
     """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
 
+    grid: ``KernelGrid``; scan: a ``SCAN_PARAMS`` record (the sensor pose, the beams'
+    angles and range limits, and the three reaches below);
     ranges: [m] per beam, REP 117 semantics; clearing_range: [m] how far a no-return
     beam clears (<= 0: no-return beams mark nothing); fill_margin: [m] how far the
     fill between beams keeps from the surface two neighbouring returns outline (<= 0:
@@ -174,6 +214,13 @@ def mark_scan(
     indices of the marked cells; box (int64[4]) receives their bounding box (col_min,
     row_min, col_max, row_max), inclusive, or (0, 0, -1, -1) when no cell is touched.
     """
+    width, height = grid.width, grid.height
+    origin_x, origin_y, resolution = grid.origin_x, grid.origin_y, grid.resolution
+    sensor_x, sensor_y, sensor_yaw = scan.x, scan.y, scan.yaw
+    angle_min, angle_increment = scan.angle_min, scan.angle_increment
+    range_min, range_max = scan.range_min, scan.range_max
+    clearing_range = scan.clearing_range
+    fill_margin, glance_margin = scan.fill_margin, scan.glance_margin
     cmin = width
     rmin = height
     cmax = -1
@@ -420,33 +467,11 @@ def _grow(cmin, rmin, cmax, rmax, c, r):
 
 
 @njit(cache=True, nogil=True)
-def apply_marks(
-    log_odds,
-    last_observed,
-    marks,
-    touched,
-    n,
-    width,
-    origin_x,
-    origin_y,
-    resolution,
-    sensor_x,
-    sensor_y,
-    stamp,
-    pose_var_xy,
-    pose_var_yaw,
-    l_hit,
-    l_miss,
-    l_miss_no_return,
-    l0,
-    clamp_min,
-    clamp_max,
-    policy,
-    half_life_occupied,
-    half_life_free,
-    fade_cache,
-):
-    """Step 3: one update per marked cell in touched[:n]; resets their marks.
+def apply_marks(buffers, n, grid, scan, model):
+    """Step 3: one update per marked cell in buffers.touched[:n]; resets their marks.
+
+    buffers: ``KernelBuffers``; grid: ``KernelGrid``; scan: the ``SCAN_PARAMS`` record
+    (its pose, stamp and pose variances); model: ``KernelModel``.
 
     Update of cell c with evidence l (l_hit for HIT, l_miss for FREE, l_miss_no_return
     for NO_RETURN):
@@ -461,6 +486,17 @@ def apply_marks(
     ``last_observed <- max(last_observed, stamp)``.
     fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``fade``), owned by the caller.
     """
+    log_odds, last_observed = buffers.log_odds, buffers.last_observed
+    marks, touched, fade_cache = buffers.marks, buffers.touched, buffers.fade_cache
+    width, origin_x, origin_y, resolution = (
+        grid.width, grid.origin_x, grid.origin_y, grid.resolution
+    )  # fmt: skip
+    sensor_x, sensor_y, stamp = scan.x, scan.y, scan.stamp
+    pose_var_xy, pose_var_yaw = scan.var_xy, scan.var_yaw
+    l_hit, l_miss, l0 = model.l_hit, model.l_miss, model.l0
+    l_miss_no_return = model.l_miss_no_return
+    clamp_min, clamp_max, policy = model.clamp_min, model.clamp_max, model.policy
+    half_life_occupied, half_life_free = model.half_life_occupied, model.half_life_free
     res2 = resolution * resolution
     weighted = pose_var_xy > 0.0 or pose_var_yaw > 0.0
     # Cells last observed by the same earlier scan share their stamp: cache fade factors.
@@ -553,52 +589,17 @@ def faded_log_odds(
 
 
 @njit(cache=True, nogil=True)
-def fuse_batch(
-    log_odds,
-    last_observed,
-    marks,
-    touched,
-    fade_cache,
-    width,
-    height,
-    origin_x,
-    origin_y,
-    resolution,
-    ranges,
-    offsets,
-    scan_params,
-    l_hit,
-    l_miss,
-    l_miss_no_return,
-    l0,
-    clamp_min,
-    clamp_max,
-    policy,
-    half_life_occupied,
-    half_life_free,
-    boxes,
-    cells,
-):
+def fuse_batch(buffers, grid, model, ranges, offsets, scans, boxes, cells):
     """Fuse scans one after the other in one call (the GIL is released once for all).
 
+    buffers: ``KernelBuffers``; grid: ``KernelGrid``; model: ``KernelModel``.
     ranges: all scans' ranges [m] concatenated; scan k's are ranges[offsets[k]:offsets[k+1]].
-    scan_params: float64 (n, 13) per scan: sensor x, y [m], yaw [rad], angle_min,
-    angle_increment [rad], range_min, range_max, clearing_range [m] (of no-return beams,
-    <= 0: none), stamp [s], pose variances xy [m^2] and yaw [rad^2], fill_margin [m]
-    (of the fill between beams, <= 0: none), glance_margin [m] (of the cut of glancing
-    returns, <= 0: none). boxes (n, 4) and cells (n,) receive each scan's
-    bounding box and number of cells updated.
+    scans: ``SCAN_PARAMS`` records, one per scan. boxes (n, 4) and cells (n,) receive each
+    scan's bounding box and number of cells updated.
     """
     for k in range(offsets.shape[0] - 1):
-        p = scan_params[k]
-        n = mark_scan(
-            marks, touched, width, height, origin_x, origin_y, resolution,
-            p[0], p[1], p[2], p[3], p[4], ranges[offsets[k]:offsets[k + 1]],
-            p[5], p[6], p[7], p[11], p[12], boxes[k],
-        )  # fmt: skip
-        apply_marks(
-            log_odds, last_observed, marks, touched, n, width, origin_x, origin_y, resolution,
-            p[0], p[1], p[8], p[9], p[10], l_hit, l_miss, l_miss_no_return, l0, clamp_min,
-            clamp_max, policy, half_life_occupied, half_life_free, fade_cache,
-        )  # fmt: skip
+        scan = scans[k]
+        beams = ranges[offsets[k] : offsets[k + 1]]
+        n = mark_scan(buffers.marks, buffers.touched, grid, scan, beams, boxes[k])
+        apply_marks(buffers, n, grid, scan, model)
         cells[k] = n
