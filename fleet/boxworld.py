@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapserver.core.errors import FieldError
 from mapserver.core.scan import Pose2D, Scan
 
 CHUNK_ELEMENTS = 1 << 18
@@ -78,7 +79,7 @@ class BoxWorld:
         are boxes like any other.
         """
         if not clearance >= 0:
-            raise ValueError(f"clearance must be >= 0 m, got {clearance!r}")
+            raise FieldError("clearance", clearance, "must be >= 0 m")
         return self.distance(x, y) > clearance
 
     def cast(self, x: float, y: float, angles: np.ndarray, range_max: float) -> np.ndarray:
@@ -91,7 +92,7 @@ class BoxWorld:
         shape of ``angles``.
         """
         if not range_max > 0:
-            raise ValueError(f"range_max must be a positive number of metres, got {range_max!r}")
+            raise FieldError("range_max", range_max, "must be a positive number of metres")
         a = np.asarray(angles, dtype=np.float64)
         out = np.full(a.size, np.inf)
         near = self.boxes[_gaps(np.array([x]), np.array([y]), self.boxes)[0] <= range_max]
@@ -196,7 +197,7 @@ def warehouse_layout(
         ("cross_aisle_every_m", cross_aisle_every_m),
     ):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive number of metres, got {value!r}")
+            raise FieldError(name, value, "must be a positive number of metres")
     rng = np.random.default_rng(seed)
     row_m = 2 * rack_depth_m
     y_first = WALL_M + PALLET_BAND_M + aisle_m  # bottom of the first rack row
@@ -257,9 +258,9 @@ def beam_angles(beams: int, fov: float) -> tuple[float, float]:
     ``angle_increment = fov / beams`` (so a full circle holds no duplicate beam).
     """
     if isinstance(beams, bool) or not isinstance(beams, int | np.integer) or beams < 1:
-        raise ValueError(f"beams must be a positive integer, got {beams!r}")
+        raise FieldError("beams", beams, "must be a positive integer")
     if not (0 < fov <= 2 * math.pi):
-        raise ValueError(f"fov must be in (0, 2 pi] rad, got {fov!r}")
+        raise FieldError("fov", fov, "must be in (0, 2 pi] rad")
     return -fov / 2, fov / beams
 
 
@@ -288,9 +289,9 @@ def scan_at(
     """
     angle_min, increment = beam_angles(beams, fov)
     if not 0 <= range_min < range_max:
-        raise ValueError(f"range_min must be in [0, range_max = {range_max}) m, got {range_min!r}")
+        raise FieldError("range_min", range_min, f"must be in [0, range_max = {range_max}) m")
     if not range_noise >= 0:
-        raise ValueError(f"range_noise must be >= 0 m, got {range_noise!r}")
+        raise FieldError("range_noise", range_noise, "must be >= 0 m")
     angles = pose.yaw + angle_min + increment * np.arange(beams)
     ranges = world.cast(pose.x, pose.y, angles, range_max)
     if range_noise > 0:
@@ -331,12 +332,12 @@ def sample_scans(
     fleet. Units do not see each other. Same arguments and seed, same scans.
     """
     if n_scans < 0:
-        raise ValueError(f"n_scans must be >= 0, got {n_scans!r}")
+        raise FieldError("n_scans", n_scans, "must be >= 0")
     if units < 1:
-        raise ValueError(f"units must be a positive integer, got {units!r}")
+        raise FieldError("units", units, "must be a positive integer")
     for name, value in (("rate_hz", rate_hz), ("speed", speed)):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be positive and finite, got {value!r}")
+            raise FieldError(name, value, "must be positive and finite")
     if len(warehouse.lane_x) * len(warehouse.lane_y) < 2:
         raise ValueError("the warehouse needs at least two lane junctions to patrol")
     rng = np.random.default_rng(seed)

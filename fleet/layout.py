@@ -36,9 +36,10 @@ from typing import Any
 
 from fleet.boxworld import Warehouse, warehouse_layout
 from fleet.shapes import Box, Cylinder, Shape
+from mapserver.core.errors import FieldError, FleetmapError
 
 
-class LayoutError(ValueError):
+class LayoutError(FleetmapError, ValueError):
     """An invalid layout; ``field`` is the dotted path of the bad value (``obstacles[2].id``)."""
 
     def __init__(self, field: str, value: Any, reason: str) -> None:
@@ -85,21 +86,21 @@ class Obstacle:
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
-            raise ValueError(f"id must be a non-empty string, got {self.id!r}")
+            raise FieldError("id", self.id, "must be a non-empty string")
         try:
             object.__setattr__(self, "kind", Kind(self.kind))
         except ValueError:
-            raise ValueError(
-                f"kind must be one of {[k.value for k in Kind]}, got {self.kind!r}"
+            raise FieldError(
+                "kind", self.kind, f"must be one of {[k.value for k in Kind]}"
             ) from None
         if not isinstance(self.shape, Box | Cylinder):
-            raise ValueError(f"shape must be a Box or a Cylinder, got {self.shape!r}")
+            raise FieldError("shape", self.shape, "must be a Box or a Cylinder")
         if self.height is None:
             object.__setattr__(self, "height", DEFAULT_HEIGHT_M[self.kind])
         if isinstance(self.height, bool) or not (
             isinstance(self.height, int | float) and math.isfinite(self.height) and self.height > 0
         ):
-            raise ValueError(f"height must be a positive number of metres, got {self.height!r}")
+            raise FieldError("height", self.height, "must be a positive number of metres")
 
     def moved(self, x: float, y: float, yaw: float | None = None) -> Obstacle:
         """This obstacle with its footprint centred at (x, y) [m], turned to yaw [rad] if given."""
@@ -116,13 +117,13 @@ class Station:
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
-            raise ValueError(f"id must be a non-empty string, got {self.id!r}")
+            raise FieldError("id", self.id, "must be a non-empty string")
         for name in ("x", "y"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
                 isinstance(value, int | float) and math.isfinite(value)
             ):
-                raise ValueError(f"{name} must be a finite number of metres, got {value!r}")
+                raise FieldError(name, value, "must be a finite number of metres")
 
 
 @dataclass(frozen=True)
@@ -316,16 +317,13 @@ def _numbers(value: Any, where: str) -> tuple[float, ...]:
 
 
 def _build(where: str, build: Any, **kwargs: Any) -> Any:
-    """``build(**kwargs)``; its ValueError (``name must ...``) becomes a LayoutError at
-    ``where.name``."""
+    """``build(**kwargs)``; its FieldError becomes a LayoutError at ``where.field``."""
     try:
         return build(**kwargs)
+    except FieldError as exc:
+        raise LayoutError(f"{where}.{exc.field}", kwargs.get(exc.field), exc.reason) from None
     except ValueError as exc:
-        message = str(exc)
-        name, _, rest = message.partition(" ")
-        value = kwargs.get(name)
-        reason = rest.rsplit(", got ", 1)[0]
-        raise LayoutError(f"{where}.{name}", value, reason) from None
+        raise LayoutError(where, kwargs, str(exc)) from None
 
 
 def _obstacle(item: Any, where: str) -> Obstacle:

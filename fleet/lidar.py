@@ -34,6 +34,7 @@ import numpy as np
 
 from fleet.boxworld import beam_angles
 from fleet.world import World
+from mapserver.core.errors import FieldError
 
 RAY_START_CLEARANCE_M = 0.001
 """[m] gap between the unit's body and the start of its rays."""
@@ -65,20 +66,19 @@ class LidarConfig:
     def __post_init__(self) -> None:
         beam_angles(self.beams, self.fov)  # checks beams and fov
         if not (math.isfinite(self.range_max) and 0 <= self.range_min < self.range_max):
-            raise ValueError(
-                f"range_min must be in [0, range_max = {self.range_max!r}) m, "
-                f"got {self.range_min!r}"
+            raise FieldError(
+                "range_min", self.range_min, f"must be in [0, range_max = {self.range_max!r}) m"
             )
         for name in ("rate_hz", "height"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+                raise FieldError(name, value, "must be positive and finite")
         if not (math.isfinite(self.range_noise) and self.range_noise >= 0):
-            raise ValueError(f"range_noise must be >= 0 m, got {self.range_noise!r}")
+            raise FieldError("range_noise", self.range_noise, "must be >= 0 m")
         for name in ("dropout_prob", "spurious_prob"):
             value = getattr(self, name)
             if not 0 <= value <= 1:
-                raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+                raise FieldError(name, value, "must be a probability in [0, 1]")
 
     @property
     def period(self) -> float:
@@ -109,9 +109,10 @@ class Lidar:
         self.rng = rng
         self.start = body_radius + RAY_START_CLEARANCE_M
         if not self.start < config.range_max:
-            raise ValueError(
-                f"range_max must exceed the unit's radius plus {RAY_START_CLEARANCE_M} m "
-                f"({self.start} m), got {config.range_max!r}"
+            raise FieldError(
+                "range_max",
+                config.range_max,
+                f"must exceed the unit's radius plus {RAY_START_CLEARANCE_M} m ({self.start} m)",
             )
         self.angle_min, self.angle_increment = beam_angles(config.beams, config.fov)  # [rad]
         angles = config.angles()

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fleet.shapes import wrap_angle
+from mapserver.core.errors import FieldError
 from mapserver.core.scan import Pose2D, PoseStd
 
 
@@ -35,10 +36,10 @@ class PoseNoise:
             if isinstance(value, bool) or not (
                 isinstance(value, int | float) and math.isfinite(value)
             ):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
+                raise FieldError(name, value, "must be a finite number")
         for name in ("std_xy", "std_yaw"):
             if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+                raise FieldError(name, getattr(self, name), "must be >= 0")
 
     @property
     def pose_std(self) -> PoseStd:

@@ -15,6 +15,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mapserver.core.errors import FieldError
+
 Bounds = tuple[float, float, float, float]
 """An axis-aligned bounding box ``(xmin, ymin, xmax, ymax)`` [m]."""
 
@@ -28,16 +30,16 @@ def _check_finite(owner: object, *names: str) -> None:
     for name in names:
         value = getattr(owner, name)
         if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-            raise ValueError(f"{name} must be a number, got {value!r}")
+            raise FieldError(name, value, "must be a number")
         if not math.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value!r}")
+            raise FieldError(name, value, "must be finite")
 
 
 def _check_positive(owner: object, *names: str) -> None:
     for name in names:
         value = getattr(owner, name)
         if not value > 0:
-            raise ValueError(f"{name} must be a positive number of metres, got {value!r}")
+            raise FieldError(name, value, "must be a positive number of metres")
 
 
 @dataclass(frozen=True)

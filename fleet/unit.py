@@ -46,6 +46,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from fleet.shapes import wrap_angle
+from mapserver.core.errors import FieldError
 from mapserver.core.scan import Pose2D
 
 WAYPOINT_TOLERANCE_M = 0.01
@@ -91,20 +92,18 @@ class DriveLimits:
             if isinstance(value, bool) or not (
                 isinstance(value, int | float) and math.isfinite(value) and value > 0
             ):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+                raise FieldError(name, value, "must be positive and finite")
         if not 0 < self.align_tolerance < math.pi / 2:
-            raise ValueError(
-                f"align_tolerance must be in (0, pi/2) rad, got {self.align_tolerance!r}"
-            )
+            raise FieldError("align_tolerance", self.align_tolerance, "must be in (0, pi/2) rad")
         if not self.align_tolerance <= self.rotate_to_heading < math.pi:
-            raise ValueError(
-                f"rotate_to_heading must be in [align_tolerance, pi) rad, "
-                f"got {self.rotate_to_heading!r}"
+            raise FieldError(
+                "rotate_to_heading", self.rotate_to_heading, "must be in [align_tolerance, pi) rad"
             )
         if self.max_lookahead < self.min_lookahead:
-            raise ValueError(
-                f"max_lookahead must be >= min_lookahead ({self.min_lookahead!r} m), "
-                f"got {self.max_lookahead!r}"
+            raise FieldError(
+                "max_lookahead",
+                self.max_lookahead,
+                f"must be >= min_lookahead ({self.min_lookahead!r} m)",
             )
 
     def lookahead(self, speed: float) -> float:
@@ -139,7 +138,7 @@ class DriveUnit:
 
     def __init__(self, unit_id: str, pose: Pose2D, limits: DriveLimits | None = None) -> None:
         if not isinstance(unit_id, str) or not unit_id.strip():
-            raise ValueError(f"unit_id must be a non-empty string, got {unit_id!r}")
+            raise FieldError("unit_id", unit_id, "must be a non-empty string")
         self.unit_id = unit_id
         self.limits = limits or DriveLimits()
         self.pose = pose
@@ -181,7 +180,7 @@ class DriveUnit:
     def step(self, dt: float) -> Pose2D:
         """Advance ``dt`` [s] under the controller (module docstring); returns the new pose."""
         if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+            raise FieldError("dt", dt, "must be a positive number of seconds")
         lim = self.limits
         x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
         self._drop_reached(x, y)

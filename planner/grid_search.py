@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from mapserver.core.costvalues import LETHAL, MAX_GRADED, UNKNOWN
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 
 NEUTRAL_COST = 50.0  # NavFn COST_NEUTRAL
@@ -61,7 +62,7 @@ class PlanResult:
     planning_ms: float
 
 
-class PlanRequestError(ValueError):
+class PlanRequestError(FleetmapError, ValueError):
     """A planning request that cannot be served: names the field and value."""
 
     def __init__(self, field: str, value: object, reason: str) -> None:

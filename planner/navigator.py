@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapserver.core.costvalues import FREE, UNKNOWN
+from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 from planner.grid_search import GridPlanner, PlanResult
@@ -52,7 +53,7 @@ class RecoveryConfig:
         for name in ("wait_s", "rotate_s", "max_wait_s", "arrive_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+                raise FieldError(name, value, "must be a positive number")
 
 
 @dataclass(frozen=True)

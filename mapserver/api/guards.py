@@ -22,13 +22,14 @@ from urllib.parse import urlsplit
 from fastapi import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from mapserver.core.errors import FleetmapError
 from mapserver.service.settings import Settings, is_loopback
 
 BODY_METHODS = frozenset({"POST", "PUT", "PATCH"})
 JSON_TYPE = "application/json"
 
 
-class BodyRefused(HTTPException):
+class BodyRefused(FleetmapError, HTTPException):
     """A request body past a limit; raised from ``receive`` inside the app, whose error
     handler answers it (and ``BodyMiddleware`` answers it if it escapes the app)."""
 

@@ -12,11 +12,12 @@ import threading
 from collections.abc import Sequence
 
 from mapserver.api.schemas import UnitState
+from mapserver.core.errors import FleetmapError
 
 MAX_TRACKED_UNITS = 4096  # distinct unit ids held at most
 
 
-class UnitBoardError(Exception):
+class UnitBoardError(FleetmapError, Exception):
     """A post refused as a whole: ``status`` (409, 422) and a ``detail`` naming the field."""
 
     def __init__(self, status: int, detail: str) -> None:

@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import Scan, ScanError
 from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
@@ -49,7 +50,7 @@ DROP_REASON = "dropped by admin"
 IMPORT_BATCH = 512  # rows per transaction of a salvage
 
 
-class UsageError(Exception):
+class UsageError(FleetmapError, Exception):
     """The command cannot run on what it was given (exit 2); the message says why."""
 
 

@@ -69,6 +69,7 @@ import httpx
 import numpy as np
 import orjson
 
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.patch import Patch
 from mapserver.core.scan import Pose2D, Scan
@@ -76,7 +77,7 @@ from mapserver.core.scan import Pose2D, Scan
 # ---------------------------------------------------------------------------- errors
 
 
-class MapClientError(Exception):
+class MapClientError(FleetmapError, Exception):
     """Base of every error ``MapClient`` raises; ``endpoint`` is e.g. ``"GET /v1/map"``."""
 
     def __init__(self, endpoint: str, message: str) -> None:

@@ -21,6 +21,7 @@ from enum import IntEnum
 import numpy as np
 
 from mapserver.core import fusion_kernel as kernel
+from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
@@ -124,7 +125,7 @@ class BeliefGrid:
         max_clearing_range: float = math.inf,
     ) -> None:
         if not max_clearing_range > 0:
-            raise ValueError(f"max_clearing_range must be positive, got {max_clearing_range!r}")
+            raise FieldError("max_clearing_range", max_clearing_range, "must be positive")
         self.geometry = geometry
         self.sensor_model = sensor_model or SensorModel()
         self.policy = Policy.parse(policy)
@@ -133,9 +134,10 @@ class BeliefGrid:
         m = self.sensor_model
         margin = min(m.l_occupied - m.l0, m.l0 - m.l_free)
         if self.decay.fade_bound >= margin:
-            raise ValueError(
-                f"decay.fade_bound must be below the thresholds' distance from the prior "
-                f"({margin:.3f} log-odds), got {self.decay.fade_bound!r}"
+            raise FieldError(
+                "decay.fade_bound",
+                self.decay.fade_bound,
+                f"must be below the thresholds' distance from the prior ({margin:.3f} log-odds)",
             )
         self._log_odds = np.full(geometry.size, self.sensor_model.l0, dtype=np.float32)
         self._last_observed = np.full(geometry.size, np.nan, dtype=np.float64)

@@ -13,8 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapserver.core.errors import FieldError, FleetmapError
 
-class OutsideMapError(ValueError):
+
+class OutsideMapError(FleetmapError, ValueError):
     """A world point lies outside the grid; carries the point for the error message."""
 
     def __init__(self, x: float, y: float, geometry: GridGeometry) -> None:
@@ -42,12 +44,12 @@ class GridGeometry:
         for name in ("width", "height"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                raise ValueError(f"{name} must be a positive number of cells, got {value!r}")
+                raise FieldError(name, value, "must be a positive number of cells")
         if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise ValueError(f"resolution must be positive metres, got {self.resolution!r}")
+            raise FieldError("resolution", self.resolution, "must be positive metres")
         for name in ("origin_x", "origin_y"):
             if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+                raise FieldError(name, getattr(self, name), "must be finite")
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -65,6 +65,7 @@ from numba import njit
 
 from mapserver.core.belief import EMPTY_BOX, CellBox
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
+from mapserver.core.errors import FieldError
 
 DISTANCE_TOLERANCE = 1e-9  # [m] slack when comparing a distance with a radius
 MAX_RADIUS_CELLS = 1000  # [cells] bounds the cost table (about R**2 entries) and int16 passes
@@ -94,28 +95,29 @@ class InflationParams:
         for name in ("inflation_radius", "cost_scaling_factor", "inscribed_radius"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{name} must be a number, got {value!r}")
+                raise FieldError(name, value, "must be a number")
             if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
+                raise FieldError(name, value, "must be finite")
         if self.inscribed_radius < 0:
-            raise ValueError(f"inscribed_radius must be >= 0 m, got {self.inscribed_radius!r}")
+            raise FieldError("inscribed_radius", self.inscribed_radius, "must be >= 0 m")
         if self.inflation_radius < self.inscribed_radius:
-            raise ValueError(
-                f"inflation_radius must be >= inscribed_radius ({self.inscribed_radius!r} m), "
-                f"got {self.inflation_radius!r}"
+            raise FieldError(
+                "inflation_radius",
+                self.inflation_radius,
+                f"must be >= inscribed_radius ({self.inscribed_radius!r} m)",
             )
         if not self.cost_scaling_factor > 0:
-            raise ValueError(
-                f"cost_scaling_factor must be > 0 per metre, got {self.cost_scaling_factor!r}"
+            raise FieldError(
+                "cost_scaling_factor", self.cost_scaling_factor, "must be > 0 per metre"
             )
         if not isinstance(self.inflate_unknown, bool | np.bool_):
-            raise ValueError(f"inflate_unknown must be a boolean, got {self.inflate_unknown!r}")
+            raise FieldError("inflate_unknown", self.inflate_unknown, "must be a boolean")
 
 
 def inflation_cost(distance: float, params: InflationParams) -> int:
     """Cost (0..254) of a cell ``distance`` [m] from the nearest lethal cell (module doc)."""
     if distance < 0 or not math.isfinite(distance):
-        raise ValueError(f"distance must be a finite number of metres >= 0, got {distance!r}")
+        raise FieldError("distance", distance, "must be a finite number of metres >= 0")
     if distance == 0:
         return int(LETHAL)
     if distance <= params.inscribed_radius + DISTANCE_TOLERANCE:
@@ -161,7 +163,7 @@ class Inflator:
         if isinstance(resolution, bool) or not (
             isinstance(resolution, int | float) and math.isfinite(resolution) and resolution > 0
         ):
-            raise ValueError(f"resolution must be a positive number of metres, got {resolution!r}")
+            raise FieldError("resolution", resolution, "must be a positive number of metres")
         self.params = params
         self.resolution = float(resolution)
         max_sq = _max_sq_distance(params.inflation_radius, self.resolution)

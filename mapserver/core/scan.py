@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from mapserver.core.errors import FleetmapError
+
 MAP_FRAME = "map"
 DEFAULT_MAX_BEAMS = 16384
 FULL_TURN = 2 * math.pi + 1e-9  # [rad] a scan's beams span at most one turn
@@ -46,7 +48,7 @@ unit that has turned many times are fine, but past this a float64 angle has lost
 meaning (and at 1.7e308 their sum is infinite: the beams have no direction)."""
 
 
-class ScanError(ValueError):
+class ScanError(FleetmapError, ValueError):
     """A scan field is missing or invalid; ``field`` is its dotted path, ``value`` the value."""
 
     def __init__(self, field: str, value: Any, reason: str) -> None:

@@ -39,6 +39,8 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
+from mapserver.core.errors import FieldError
+
 
 def logit(p: float) -> float:
     """Log-odds of probability p (0 < p < 1)."""
@@ -72,7 +74,7 @@ class Policy(StrEnum):
             return cls(value)
         except ValueError:
             choices = ", ".join(p.value for p in cls)
-            raise ValueError(f"policy must be one of {choices}, got {value!r}") from None
+            raise FieldError("policy", value, f"must be one of {choices}") from None
 
 
 # Kernel codes for the policies (numba kernels take integers, not enums).
@@ -81,7 +83,7 @@ POLICY_CODES = {Policy.DECAY: 0, Policy.BINARY: 1, Policy.STICKY: 2}
 
 def _probability(name: str, value: float) -> float:
     if not (isinstance(value, int | float) and 0.0 < value < 1.0):
-        raise ValueError(f"{name} must be a probability strictly between 0 and 1, got {value!r}")
+        raise FieldError(name, value, "must be a probability strictly between 0 and 1")
     return float(value)
 
 
@@ -124,52 +126,47 @@ class SensorModel:
     def __post_init__(self) -> None:
         for name in ("fill_between_beams", "guard_glancing_faces"):
             if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+                raise FieldError(name, getattr(self, name), "must be true or false")
         for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
             _probability(name, getattr(self, name))
         _probability("p_miss_no_return", self.p_miss_no_return)
         if not self.p_hit > self.prior:
-            raise ValueError(
-                f"p_hit must be greater than the prior ({self.prior}), got {self.p_hit!r}"
-            )
+            raise FieldError("p_hit", self.p_hit, f"must be greater than the prior ({self.prior})")
         if not self.p_miss < self.prior:
-            raise ValueError(
-                f"p_miss must be less than the prior ({self.prior}), got {self.p_miss!r}"
-            )
+            raise FieldError("p_miss", self.p_miss, f"must be less than the prior ({self.prior})")
         if not self.p_miss <= self.p_miss_no_return <= self.prior:
-            raise ValueError(
-                f"p_miss_no_return must be between p_miss ({self.p_miss}) and the prior "
-                f"({self.prior}): a beam that reads nothing is no stronger evidence than one "
-                f"that returned, got {self.p_miss_no_return!r}"
+            raise FieldError(
+                "p_miss_no_return",
+                self.p_miss_no_return,
+                f"must be between p_miss ({self.p_miss}) and the prior ({self.prior}): a beam "
+                "that reads nothing is no stronger evidence than one that returned",
             )
         value = self.no_return_range
         if value is not None and not (isinstance(value, int | float) and value > 0):
-            raise ValueError(
-                f"no_return_range must be a positive range in metres or None, got {value!r}"
-            )
+            raise FieldError("no_return_range", value, "must be a positive range in metres or None")
         for name in ("clamp_min", "clamp_max"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value)):
-                raise ValueError(f"{name} must be a finite log-odds value, got {value!r}")
+                raise FieldError(name, value, "must be a finite log-odds value")
         if not self.clamp_min < self.l0:
-            raise ValueError(
-                f"clamp_min must be below the prior's log-odds ({self.l0:.3f}), "
-                f"got {self.clamp_min!r}"
+            raise FieldError(
+                "clamp_min", self.clamp_min, f"must be below the prior's log-odds ({self.l0:.3f})"
             )
         if not self.clamp_max > self.l0:
-            raise ValueError(
-                f"clamp_max must be above the prior's log-odds ({self.l0:.3f}), "
-                f"got {self.clamp_max!r}"
+            raise FieldError(
+                "clamp_max", self.clamp_max, f"must be above the prior's log-odds ({self.l0:.3f})"
             )
         if not self.free_threshold < self.prior:
-            raise ValueError(
-                f"free_threshold must be below the prior ({self.prior}) so that a cell at the "
-                f"prior is unknown, got {self.free_threshold!r}"
+            raise FieldError(
+                "free_threshold",
+                self.free_threshold,
+                f"must be below the prior ({self.prior}) so that a cell at the prior is unknown",
             )
         if not self.occupied_threshold > self.prior:
-            raise ValueError(
-                f"occupied_threshold must be above the prior ({self.prior}) so that a cell at "
-                f"the prior is unknown, got {self.occupied_threshold!r}"
+            raise FieldError(
+                "occupied_threshold",
+                self.occupied_threshold,
+                f"must be above the prior ({self.prior}) so that a cell at the prior is unknown",
             )
 
     @property
@@ -227,4 +224,4 @@ class DecayParams:
         for name in ("half_life_occupied", "half_life_free", "fade_bound"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+                raise FieldError(name, value, "must be a positive finite number")

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from mapserver.core.belief import BeliefGrid
+from mapserver.core.errors import FleetmapError
 from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.patch import Patch
 from mapserver.core.queries import (
@@ -65,7 +66,7 @@ LOCK_FILE = "server.lock"
 MAX_GROUP = 512  # scans applied together at most
 
 
-class DataDirError(RuntimeError):
+class DataDirError(FleetmapError, RuntimeError):
     """The data directory cannot be used (in use, or written with other map settings)."""
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from mapserver.core.belief import BeliefGrid
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
@@ -23,7 +24,7 @@ from mapserver.store.journal import JOURNAL_FILENAME, JournalError, open_journal
 from mapserver.store.journal_reading import ReadRecord, read_records
 
 
-class ReplayError(ValueError):
+class ReplayError(FleetmapError, ValueError):
     """The source is not a readable server journal."""
 
 

@@ -14,12 +14,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.service.fleet_clock import FleetClock
 
 
-class IngestError(Exception):
+class IngestError(FleetmapError, Exception):
     """A submission refused as a whole: ``status`` (409, 422, 503) and a ``detail``."""
 
     def __init__(self, status: int, detail: str) -> None:

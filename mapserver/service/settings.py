@@ -58,6 +58,7 @@ from pydantic_settings import (
 )
 
 from mapserver.core.belief import BeliefGrid
+from mapserver.core.errors import FieldError, FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import DEFAULT_MAX_BEAMS
@@ -80,15 +81,22 @@ _CONFIG_FILE_DATA: ContextVar[Mapping[str, Any]] = ContextVar(
 )
 
 
-class SettingsError(ValueError):
+class SettingsError(FleetmapError, ValueError):
     """Invalid settings or an unreadable config file; ``problems`` holds one line each.
 
     Each problem reads ``field: what is wrong, got value`` (``field`` dotted, e.g.
-    ``sensor_model.p_hit``, or ``config`` for the file itself).
+    ``sensor_model.p_hit``, or ``config`` for the file itself); ``fields`` holds the same
+    problems as (field, what is wrong, got value) pairs, for code that places them.
     """
 
-    def __init__(self, problems: list[str], source: str = "") -> None:
+    def __init__(
+        self,
+        problems: list[str],
+        source: str = "",
+        fields: list[tuple[str, str]] | None = None,
+    ) -> None:
         self.problems = problems
+        self.fields = fields if fields is not None else []
         where = f" ({source})" if source else ""
         lines = "\n".join(f"  {problem}" for problem in problems)
         super().__init__(f"invalid fleetmap settings{where}:\n{lines}")
@@ -112,8 +120,8 @@ class _Section(BaseModel):
 class _DomainSection(_Section):
     """Settings that mirror a domain class field for field, checked by that class.
 
-    ``build()`` constructs the domain object; a ``ValueError`` it raises becomes a
-    validation error located at the field its message starts with.
+    ``build()`` constructs the domain object; a ``FieldError`` it raises becomes a
+    validation error located at the field it names.
     """
 
     @abstractmethod
@@ -574,12 +582,18 @@ def load_settings(
             return Settings(**values)
         return Settings.from_yaml(config_path, **values)
     except ValidationError as exc:
-        raise SettingsError(describe_errors(exc), source) from None
+        fields = located_errors(exc)
+        raise SettingsError([f"{f}: {m}" for f, m in fields], source, fields) from None
 
 
 def describe_errors(exc: ValidationError) -> list[str]:
     """One ``field: problem, got value`` line per pydantic error (token secrets hidden)."""
-    lines = []
+    return [f"{field}: {message}" for field, message in located_errors(exc)]
+
+
+def located_errors(exc: ValidationError) -> list[tuple[str, str]]:
+    """(field, ``problem, got value``) per pydantic error (token secrets hidden)."""
+    found = []
     for error in exc.errors():
         loc = error["loc"]
         field = _dotted(loc) or "settings"
@@ -587,8 +601,8 @@ def describe_errors(exc: ValidationError) -> list[str]:
         secret = bool(loc) and loc[-1] == "token"
         if "got " not in message and error["type"] != "missing" and not secret:
             message = f"{message}, got {error['input']!r}"
-        lines.append(f"{field}: {message}")
-    return lines
+        found.append((field, message))
+    return found
 
 
 def is_loopback(host: str) -> bool:
@@ -632,18 +646,18 @@ def _error(loc: tuple[int | str, ...], value: Any, reason: str) -> ValidationErr
 
 
 def _located_error(model: BaseModel, exc: ValueError) -> ValidationError:
-    """A domain ``ValueError`` as a validation error at the field its message starts with.
+    """A domain error as a validation error at the field it names.
 
-    The domain classes begin every message with the field's name (``p_hit must be ...``,
-    ``decay.fade_bound must be ...``); when that name is a field of ``model`` the error is
-    placed there with the rest of the message, else on ``model`` with the whole message.
+    A ``FieldError`` carries its field (``p_hit``, ``decay.fade_bound``); when that is a
+    field of ``model`` the error is placed there with its reason and value, else on
+    ``model`` with the whole message, as is any other ``ValueError``.
     """
-    message = str(exc)
-    head, _, rest = message.partition(" ")
+    if not isinstance(exc, FieldError):
+        return _error((), None, str(exc))
     value: Any = model
     loc: tuple[str, ...] = ()
-    for part in head.split("."):
+    for part in exc.field.split("."):
         if not isinstance(value, BaseModel) or part not in type(value).model_fields:
-            return _error((), None, message)
+            return _error((), None, str(exc))
         value, loc = getattr(value, part), (*loc, part)
-    return _error(loc, value, rest)
+    return _error(loc, value, exc.detail)

@@ -19,8 +19,10 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from mapserver.core.errors import FleetmapError
 
-class LockBusy(RuntimeError):
+
+class LockBusy(FleetmapError, RuntimeError):
     """Another holder has one of the files locked; ``path`` names it."""
 
     def __init__(self, path: Path) -> None:

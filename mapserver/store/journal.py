@@ -85,6 +85,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from mapserver.core.errors import FleetmapError
+
 logger = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 3
@@ -150,11 +152,11 @@ _UPSERT_UNIT = (
 )
 
 
-class JournalError(RuntimeError):
+class JournalError(FleetmapError, RuntimeError):
     """The journal file cannot be opened or used; the message names the path and why."""
 
 
-class RecordError(ValueError):
+class RecordError(FleetmapError, ValueError):
     """One journal record is damaged: its checksum fails or its body does not parse."""
 
 

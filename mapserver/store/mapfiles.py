@@ -48,6 +48,7 @@ import yaml
 from PIL import Image
 
 from mapserver.core.costvalues import OCC_FREE, OCC_OCCUPIED, OCC_UNKNOWN
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.store.atomic import atomic_output
 
@@ -71,7 +72,7 @@ class MapMode(StrEnum):
     RAW = "raw"
 
 
-class MapFileError(ValueError):
+class MapFileError(FleetmapError, ValueError):
     """A map YAML or image that cannot be read; the message names the key and value."""
 
 

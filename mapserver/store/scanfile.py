@@ -10,10 +10,11 @@ import json
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import DEFAULT_MAX_BEAMS, Scan, ScanError
 
 
-class ScanFileError(ValueError):
+class ScanFileError(FleetmapError, ValueError):
     """A line of a scan file is not a valid scan; names the file, line and field."""
 
     def __init__(self, path: Path | str, line: int, field: str, detail: str) -> None:

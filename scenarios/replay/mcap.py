@@ -54,6 +54,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
 from fleet.unit import DriveLimits
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.store.atomic import atomic_output
@@ -113,7 +114,7 @@ def plan_topic(unit_id: str) -> str:
     return f"/units/{unit_id}/plan"
 
 
-class ReplayFileError(ValueError):
+class ReplayFileError(FleetmapError, ValueError):
     """A replay file is missing, not MCAP, or holds a scan that is not valid; the message
     names the file and what was wrong."""
 

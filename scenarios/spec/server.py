@@ -109,7 +109,7 @@ def parse_map_server(doc: Document, f: Fields, layout: Layout, drive: DriveLimit
     try:
         settings = load_settings(None, overrides)
     except SettingsError as exc:
-        name, _, detail = exc.problems[0].partition(": ")
+        name, detail = exc.fields[0] if exc.fields else ("", exc.problems[0])
         path = field_path(name)
         if not path or path[0] not in MAP_SERVER_KEYS:
             where = f.at("resolution") if path[:1] == ("grid",) else f.path

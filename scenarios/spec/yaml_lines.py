@@ -29,6 +29,8 @@ from typing import Any, TypeVar
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from mapserver.core.errors import FieldError, FleetmapError
+
 FieldPath = tuple[str | int, ...]
 """Where a value sits in the document: mapping keys and list indices from the top."""
 
@@ -70,7 +72,7 @@ def short_repr(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
-class ScenarioError(ValueError):
+class ScenarioError(FleetmapError, ValueError):
     """An invalid scenario: ``source:line: field: what is wrong, got value``.
 
     source: the file (as given); line: 1-based, None when unknown; field: the dotted
@@ -417,10 +419,9 @@ def build_dataclass(
             raise TypeError(f"{cls.__name__}.{f.name}: unsupported field type {f.type!r}")
     try:
         return cls(**kwargs)
+    except FieldError as exc:
+        if exc.field not in names:
+            raise doc.error(path, str(exc)) from None
+        raise doc.error((*path, exc.field), exc.reason, kwargs.get(exc.field, MISSING)) from None
     except ValueError as exc:
-        message = str(exc)
-        name, _, rest = message.partition(" ")
-        if name not in names:
-            raise doc.error(path, message) from None
-        reason = rest.rsplit(", got ", 1)[0]
-        raise doc.error((*path, name), reason, kwargs.get(name, MISSING)) from None
+        raise doc.error(path, str(exc)) from None

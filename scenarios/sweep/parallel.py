@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from mapserver.core.errors import FleetmapError
 from scenarios.sweep.sweep_file import SweepRun
 
 __all__ = [
@@ -40,7 +41,7 @@ __all__ = [
 RAY_EXTRA = "ray"
 
 
-class MissingExtraError(RuntimeError):
+class MissingExtraError(FleetmapError, RuntimeError):
     """An optional dependency is not installed; the message names the extra to install."""
 
 
