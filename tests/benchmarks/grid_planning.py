@@ -1,6 +1,6 @@
 """Grid planning benchmark: A* and Dijkstra corner to corner on a 2000 x 2000 costmap.
 
-Run: ``python tests/benchmarks/grid_planning.py [--json]``
+Run: ``python -m tests.benchmarks.grid_planning [--json]``
 
 The costmap is the inflation benchmark's warehouse (``tests/benchmarks/inflation.py``:
 walls, rack rows, totes; 0.05 m cells) inflated with the Nav2 defaults. Printed: A* and
@@ -19,13 +19,13 @@ import time
 
 import networkx as nx
 import numpy as np
-from inflation import warehouse
 
 from mapserver.core.costvalues import LETHAL
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams, Inflator
 from planner.grid_reference import networkx_grid
 from planner.grid_search import GridPlanner
+from tests.benchmarks.inflation import warehouse
 
 RES = 0.05
 
