@@ -586,11 +586,6 @@ def load_settings(
         raise SettingsError([f"{f}: {m}" for f, m in fields], source, fields) from None
 
 
-def describe_errors(exc: ValidationError) -> list[str]:
-    """One ``field: problem, got value`` line per pydantic error (token secrets hidden)."""
-    return [f"{field}: {message}" for field, message in located_errors(exc)]
-
-
 def located_errors(exc: ValidationError) -> list[tuple[str, str]]:
     """(field, ``problem, got value``) per pydantic error (token secrets hidden)."""
     found = []

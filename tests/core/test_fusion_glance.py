@@ -59,6 +59,13 @@ def test_the_cut_is_capped_and_needs_both_neighbours_on_one_line_with_it():
     assert glance_cutoff(grazing, 1, 0.05, 20.0, sin_s, cos_s, RES) == GLANCE_CAP_CELLS * RES
     edge = np.array([3.0, 3.0, 9.0])  # an occlusion edge: the three outline no one face
     assert glance_cutoff(edge, 1, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
+    # A face at 10 degrees 0.5 m out: its outline spans 0.10 m, under two 0.1 m cells
+    # (within range noise), so no cut; with 0.04 m cells the same outline is a face.
+    near = np.array([on_line(0.5, math.radians(10), d) for d in (-STEP, 0.0, STEP)])
+    assert glance_cutoff(near, 1, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
+    assert glance_cutoff(near, 1, 0.05, 20.0, sin_s, cos_s, 0.04) == pytest.approx(
+        0.04 * (1 / math.sin(math.radians(10)) - 1), rel=0.05
+    )
     lone = np.array([math.inf, 3.0, 3.0])  # next to a no-return: no surface is known
     assert glance_cutoff(lone, 1, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
     assert glance_cutoff(np.array([3.0, 3.0]), 0, 0.05, 20.0, sin_s, cos_s, RES) == 0.0
@@ -89,8 +96,8 @@ def test_a_glancing_return_leaves_the_cells_along_the_face_alone():
 
 def test_a_square_face_an_occlusion_edge_and_binary_are_as_before():
     # Square to the beams at 8 m (a chord of 0.28 m: a surface is known, alpha ~90 deg),
-    # an occlusion edge, and three returns at 3 m whose chord (0.10 m) is under two cells.
-    for ranges in ([8.0, 8.0, 8.0], [3.0, 3.0, 9.0], [3.0, 3.0, 3.0]):
+    # and an occlusion edge (a cut of 1 m without the bend rule).
+    for ranges in ([8.0, 8.0, 8.0], [3.0, 3.0, 9.0]):
         angle = math.radians(45)
         guarded, unguarded = fused(GUARD, ranges, angle), fused(NO_GUARD, ranges, angle)
         assert np.array_equal(guarded.raw_log_odds(), unguarded.raw_log_odds()), ranges
