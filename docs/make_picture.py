@@ -44,11 +44,11 @@ def fill(client: MapClient) -> None:
             rack = warehouse.world.boxes[[kind == "rack" for kind in warehouse.kinds]][3]
             goal = ((rack[0] + rack[2]) / 2, (rack[1] + rack[3]) / 2)
             reason = f"no path to ({goal[0]:.1f}, {goal[1]:.1f}): the goal is in a rack"
-            states.append(UnitState(unit_id, scan.stamp, scan.pose, frozen=True, reason=reason))
+            states.append(UnitState.of(unit_id, scan.stamp, scan.pose, frozen=True, reason=reason))
             continue
         goal = junctions[(7 * k + 5) % len(junctions)]
         plan = client.plan(start, goal, allow_unknown=True, unit_id=unit_id)
-        states.append(UnitState(unit_id, scan.stamp, scan.pose, tuple(plan.path)))
+        states.append(UnitState.of(unit_id, scan.stamp, scan.pose, plan.path))
     client.publish_units(states)
 
 

@@ -77,9 +77,9 @@ NODE_KINDS = ("junction", "station", "waypoint")
 
 
 class SegmentReading(Protocol):
-    """One segment of the map as the lane graph reads it (``MapClient``'s ``SegmentInfo``,
+    """One segment of the map as the lane graph reads it (``MapClient``'s ``SegmentOut``,
     docs/http-api.md 2.5): max_cost 0..255 (None: no known cell), blocked (a cell on it is lethal
-    or inscribed), unknown_fraction 0..1 of its cells, first_blocked (x, y) [m] or None."""
+    or inscribed), unknown_fraction 0..1 of its cells, first_blocked [x, y] [m] or None."""
 
     @property
     def max_cost(self) -> int | None: ...
@@ -88,7 +88,7 @@ class SegmentReading(Protocol):
     @property
     def unknown_fraction(self) -> float: ...
     @property
-    def first_blocked(self) -> tuple[float, float] | None: ...
+    def first_blocked(self) -> Sequence[float] | None: ...
 
 
 class SegmentQuerier(Protocol):

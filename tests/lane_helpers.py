@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from fleet.boxworld import BoxWorld, Warehouse
-from mapserver.client import SegmentInfo
+from mapserver.client import SegmentOut
 from mapserver.core.costvalues import LETHAL
 from planner.coordinator import LaneCoordinator
 from planner.lane_graph import LaneGraph
@@ -62,7 +62,14 @@ class FakeMap:
                     hits.append((t, (ox, oy)))
             cost, unknown = self.readings.get(frozenset(((x0, y0), (x1, y1))), (0, 0.0))
             first = min(hits)[1] if hits else None
-            out.append(SegmentInfo(int(LETHAL) if hits else cost, bool(hits), unknown, first))
+            out.append(
+                SegmentOut(
+                    max_cost=int(LETHAL) if hits else cost,
+                    blocked=bool(hits),
+                    unknown_fraction=unknown,
+                    first_blocked=first,
+                )
+            )
         return out
 
 

@@ -5,13 +5,23 @@ validator of scans, so errors read the same from every source.
 
 Numbers in request bodies are strict: an integer is a number, ``true`` is not (pydantic
 would otherwise read it as 1.0); booleans are only ``true``/``false``.
+
+These models are the one definition of the wire format: the server's routes answer with
+them and ``MapClient`` validates every JSON reply with them (strictly, so a reply that
+sends ``"3"`` for a number breaks the contract). They import only pydantic, numpy and the
+pure core, so the client loads no server code.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from collections.abc import Iterable
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.patch import Patch
 
 Number = Annotated[float, Field(strict=True)]  # int or float; not a bool, not a string
 Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
@@ -57,6 +67,8 @@ class ScanBatchIn(BaseModel):
 
 
 class ScanAck(BaseModel):
+    """A durable scan: its journal sequence number and a map version that includes it."""
+
     seq: int = Field(description="the scan's journal sequence number")
     map_version: int = Field(description="a map version that includes the scan")
 
@@ -76,6 +88,13 @@ class Origin(BaseModel):
 
 
 class MapMeta(BaseModel):
+    """``GET /v1/map/meta`` (docs/http-api.md 2.2): geometry, version, stamp and settings.
+
+    ``origin`` is the outer corner of cell (0, 0) [m] and its yaw [rad]; ``stamp`` [s] is
+    the map's now (null before any scan); ``sensor_model``, ``decay``, ``inflation`` and
+    ``thresholds`` are the server's settings as sent.
+    """
+
     resolution: float = Field(description="[m/cell]")
     width: int = Field(description="[cells]")
     height: int = Field(description="[cells]")
@@ -88,6 +107,11 @@ class MapMeta(BaseModel):
     decay: dict
     inflation: dict
     thresholds: dict
+
+    @property
+    def geometry(self) -> GridGeometry:
+        """The grid's size, resolution and origin [m] (the origin's yaw is not part of it)."""
+        return GridGeometry(self.width, self.height, self.resolution, self.origin.x, self.origin.y)
 
 
 class GridJson(BaseModel):
@@ -103,15 +127,35 @@ class AgeGridJson(BaseModel):
     )
 
 
+Cost = Annotated[int, Field(ge=0, le=255)]
+
+
 class PatchOut(BaseModel):
-    x0: int
-    y0: int
-    width: int
-    height: int
-    data: list[int]
+    """The current costs of the box (x0, y0) .. (x0 + width - 1, y0 + height - 1) [cells]."""
+
+    x0: int = Field(ge=0)
+    y0: int = Field(ge=0)
+    width: int = Field(ge=1)
+    height: int = Field(ge=1)
+    data: list[Cost] = Field(description="row-major Nav2 costs, width * height values")
+
+    @model_validator(mode="after")
+    def _fills_its_box(self) -> PatchOut:
+        if len(self.data) != self.width * self.height:
+            need = self.width * self.height
+            raise ValueError(f"data must hold width * height = {need} values, not {len(self.data)}")
+        return self
+
+    def to_patch(self) -> Patch:
+        """The patch with its costs as a uint8 (height, width) array."""
+        data = np.array(self.data, dtype=np.uint8).reshape(self.height, self.width)
+        return Patch(self.x0, self.y0, self.width, self.height, data)
 
 
 class CostmapUpdates(BaseModel):
+    """``GET /v1/costmap/updates``: the patches that bring a copy from ``since`` to ``version``;
+    ``full`` (and no patches) when the server no longer holds the asked version."""
+
     version: int
     stamp: float | None = Field(None, description="[s] the map's stamp at that version")
     full: bool = Field(False, description="true: the version is too old, read the full costmap")
@@ -126,6 +170,10 @@ class CellsIn(BaseModel):
 
 
 class CellOut(BaseModel):
+    """One queried point (docs/http-api.md 2.4): x, y [m] as asked; p_occ (None when unknown
+    or outside); cost 0..255 (None outside); last_observed [s] and age = at - last_observed
+    [s] (None if never observed)."""
+
     x: float
     y: float
     state: Literal["free", "occupied", "unknown", "outside"]
@@ -146,6 +194,8 @@ class SegmentsIn(BaseModel):
 
 
 class SegmentOut(BaseModel):
+    """One queried segment (docs/http-api.md 2.5)."""
+
     max_cost: int | None = Field(description="highest known cost on the segment")
     blocked: bool = Field(description="a lethal or inscribed cell lies on it")
     unknown_fraction: float
@@ -170,6 +220,8 @@ class PlanIn(BaseModel):
 
 
 class PlanOut(BaseModel):
+    """``POST /v1/plan`` (docs/http-api.md 2.6); ``path`` is empty when none was found."""
+
     found: bool
     path: list[list[float]] = Field(description="[[x, y], ...] cell centres [m]")
     length: float = Field(description="[m] along the path")
@@ -210,6 +262,27 @@ class UnitState(_StrictModel):
     reason: str | None = Field(
         None, max_length=MAX_REASON_CHARS, description="why the unit is frozen or waits"
     )
+
+    @classmethod
+    def of(
+        cls,
+        unit_id: str,
+        stamp: float,
+        pose: Any,
+        path: Iterable[Iterable[float]] = (),
+        frozen: bool = False,
+        reason: str | None = None,
+    ) -> UnitState:
+        """The state of a unit at ``pose`` (anything with ``x``, ``y`` [m] and ``yaw``
+        [rad], e.g. ``Pose2D``) with ``path`` as (x, y) pairs [m]; checked as on the wire."""
+        return cls(
+            unit_id=unit_id,
+            stamp=stamp,
+            pose=UnitPose(x=pose.x, y=pose.y, yaw=pose.yaw),
+            path=[list(point) for point in path],
+            frozen=frozen,
+            reason=reason,
+        )
 
 
 class UnitsIn(_StrictModel):

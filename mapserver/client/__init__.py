@@ -1,32 +1,39 @@
 """The HTTP client of the map server (``MapClient``) and the replies it returns.
 
+The replies are the API's own models (``mapserver.api.schemas``), re-exported here:
+``ScanAck``, ``MapMeta``, ``CostmapUpdates`` (of ``PatchOut``), ``CellOut``,
+``SegmentOut``, ``PlanOut``, ``UnitState`` (with ``UnitPose``); ``Grid`` holds a raw grid.
 Importing it loads neither numba, PIL, sqlite3 nor fastapi
 (``tests/test_import_directions.py``).
 """
 
-from mapserver.client.map_client import (
-    CellInfo,
-    Conflict,
+from mapserver.api.schemas import (
+    CellOut,
     CostmapUpdates,
+    MapMeta,
+    PatchOut,
+    PlanOut,
+    ScanAck,
+    SegmentOut,
+    UnitPose,
+    UnitState,
+)
+from mapserver.client.map_client import (
+    Conflict,
     Forbidden,
     Grid,
     InvalidRequest,
     MapClient,
     MapClientError,
-    MapMeta,
     MapProtocolError,
     MapRequestError,
     MapServerError,
     MapServerUnavailable,
-    PlanResult,
-    ScanAck,
-    SegmentInfo,
     Unauthorized,
-    UnitState,
 )
 
 __all__ = [
-    "CellInfo",
+    "CellOut",
     "Conflict",
     "CostmapUpdates",
     "Forbidden",
@@ -39,9 +46,11 @@ __all__ = [
     "MapRequestError",
     "MapServerError",
     "MapServerUnavailable",
-    "PlanResult",
+    "PatchOut",
+    "PlanOut",
     "ScanAck",
-    "SegmentInfo",
+    "SegmentOut",
     "Unauthorized",
+    "UnitPose",
     "UnitState",
 ]

@@ -37,7 +37,8 @@ Errors - every failure raises a subclass of ``MapClientError``; each names the e
 
   - ``MapServerError`` - 5xx: a server bug. ``status`` and ``detail`` as above.
   - ``MapProtocolError`` - a 2xx reply that breaks the contract: not JSON, a missing or
-    mistyped field or header, a raw body whose size is not ``width * height``.
+    mistyped field (replies are validated strictly by the API's own pydantic models,
+    ``mapserver.api.schemas``) or header, a raw body whose size is not ``width * height``.
 
 Wire format notes:
 
@@ -63,16 +64,30 @@ import numbers
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
 import orjson
+from pydantic import BaseModel, ValidationError
 
-from mapserver.core.errors import FleetmapError
+from mapserver.api.schemas import (
+    CellOut,
+    CellsOut,
+    CostmapUpdates,
+    MapMeta,
+    PlanOut,
+    ScanAck,
+    ScanBatchAck,
+    SegmentOut,
+    SegmentsOut,
+    UnitsAck,
+    UnitsOut,
+    UnitState,
+)
+from mapserver.core.errors import FleetmapError, dotted
 from mapserver.core.geometry import GridGeometry
-from mapserver.core.patch import Patch
-from mapserver.core.scan import Pose2D, Scan
+from mapserver.core.scan import Scan
 
 # ---------------------------------------------------------------------------- errors
 
@@ -159,143 +174,21 @@ def _clip(text: str, limit: int) -> str:
 # ---------------------------------------------------------------------------- replies
 
 
-@dataclass(frozen=True)
-class ScanAck:
-    """A durable scan: ``seq`` (its journal sequence number) and the map's version after it."""
-
-    seq: int
-    map_version: int
-
-
-@dataclass(frozen=True)
-class MapMeta:
-    """``GET /v1/map/meta`` (docs/http-api.md 2.2).
-
-    resolution [m/cell]; width, height [cells]; origin_x, origin_y [m] (the outer corner of
-    cell (0, 0)), origin_yaw [rad]; frame; stamp [s] (the map's "now", the latest scan
-    stamp; None if the server sends null before any scan); version (bumped on every
-    change). ``sensor_model``, ``decay``, ``inflation`` and ``thresholds`` are the server's
-    settings as sent.
-    """
-
-    resolution: float
-    width: int
-    height: int
-    origin_x: float
-    origin_y: float
-    origin_yaw: float
-    frame: str
-    stamp: float | None
-    version: int
-    sensor_model: dict[str, Any]
-    decay: dict[str, Any]
-    inflation: dict[str, Any]
-    thresholds: dict[str, Any]
-
-    @property
-    def geometry(self) -> GridGeometry:
-        """The grid's size, resolution and origin."""
-        return GridGeometry(self.width, self.height, self.resolution, self.origin_x, self.origin_y)
-
-
 @dataclass(frozen=True, eq=False)
 class Grid:
     """A fetched grid: ``data`` (height, width), row 0 at the origin's y, read-only.
 
     int8 OccupancyGrid values for ``occupancy`` (-1 unknown, 0..100 percent), uint8 Nav2
     costs for ``costmap`` (0 free .. 254 lethal, 255 unknown). ``version`` and ``stamp``
-    [s] are the map's at evaluation (``stamp`` None when the server does not say).
+    [s] are the map's at evaluation (``stamp`` None when the server does not say). Raw
+    grids come as bytes and ``X-Map-*`` headers, not JSON, so this is the one reply type
+    that is not a model of ``mapserver.api.schemas``.
     """
 
     data: np.ndarray
     geometry: GridGeometry
     version: int
     stamp: float | None
-
-
-@dataclass(frozen=True)
-class CostmapUpdates:
-    """``GET /v1/costmap/updates``: patches to bring a copy to ``version``.
-
-    ``full`` is True (and ``patches`` None) when the server no longer holds the asked
-    version; the caller then fetches the whole costmap. ``stamp`` [s] is the costmap's
-    stamp if the server sends one (docs/http-api.md 2.3 does not require it), else None.
-    """
-
-    version: int
-    patches: list[Patch] | None
-    full: bool
-    stamp: float | None = None
-
-
-@dataclass(frozen=True)
-class CellInfo:
-    """One queried point (docs/http-api.md 2.4).
-
-    x, y [m] as queried; state "free", "occupied", "unknown" or "outside"; p_occ
-    (probability, None when unknown or outside); cost (0..255, None outside);
-    last_observed [s] and age = at - last_observed [s] (None if never observed).
-    """
-
-    x: float
-    y: float
-    state: str
-    p_occ: float | None
-    cost: int | None
-    last_observed: float | None
-    age: float | None
-
-
-@dataclass(frozen=True)
-class SegmentInfo:
-    """One queried segment (docs/http-api.md 2.5).
-
-    max_cost (0..255, None if no known cell); blocked (a cell on it is lethal or
-    inscribed); unknown_fraction (0..1 of its cells); first_blocked (x, y) [m] or None.
-    """
-
-    max_cost: int | None
-    blocked: bool
-    unknown_fraction: float
-    first_blocked: tuple[float, float] | None
-
-
-@dataclass(frozen=True)
-class PlanResult:
-    """``POST /v1/plan`` (docs/http-api.md 2.6).
-
-    found; path [(x, y) m] from start to goal (empty when not found); length [m]; cost;
-    min_clearance [m]; expanded [nodes]; planning_ms [ms]; map_version planned on.
-    length, cost and min_clearance are None when the server sends null (no path).
-    """
-
-    found: bool
-    path: list[tuple[float, float]]
-    length: float | None
-    cost: float | None
-    min_clearance: float | None
-    expanded: int
-    planning_ms: float
-    map_version: int
-
-
-@dataclass(frozen=True)
-class UnitState:
-    """A unit's state as its fleet publishes it for the viewer (``/v1/units``, a project
-    extension of docs/http-api.md).
-
-    unit_id; stamp [s] (a unit's stamps never go backwards); pose: x, y [m] of the unit's
-    centre and yaw [rad]; path: the unit's planned path [(x, y) m], empty when it has
-    none; frozen: the unit waits because no admissible path or lane was found; reason:
-    why it is frozen or waiting (free text, None when there is nothing to say).
-    """
-
-    unit_id: str
-    stamp: float
-    pose: Pose2D
-    path: tuple[tuple[float, float], ...] = ()
-    frozen: bool = False
-    reason: str | None = None
 
 
 # ---------------------------------------------------------------------------- client
@@ -348,8 +241,8 @@ class MapClient:
 
     def post_scan(self, scan: Scan | Mapping[str, Any]) -> ScanAck:
         """Send one scan (a ``Scan`` or its docs/http-api.md 2.1 dict as is); durable once acked."""
-        reply = self._json("POST", "/v1/scans", body=_scan_body(scan), fast=isinstance(scan, Scan))
-        return _ack(reply)
+        body = _scan_body(scan)
+        return self._json("POST", "/v1/scans", ScanAck, body=body, fast=isinstance(scan, Scan))
 
     def post_scans(self, scans: Iterable[Scan | Mapping[str, Any]]) -> list[ScanAck]:
         """Send scans in one ``POST /v1/scans/batch``; one ack per scan, in order.
@@ -361,30 +254,15 @@ class MapClient:
             return []
         bodies = [_scan_body(scan) for scan in scans]
         fast = all(isinstance(scan, Scan) for scan in scans)
-        reply = self._json("POST", "/v1/scans/batch", body={"scans": bodies}, fast=fast)
-        return [_ack(ack) for ack in _same_count(reply, "acks", len(bodies))]
+        endpoint = "POST /v1/scans/batch"
+        reply = self._json("POST", "/v1/scans/batch", ScanBatchAck, {"scans": bodies}, fast=fast)
+        return _same_count(endpoint, "acks", reply.acks, len(bodies))
 
     # -- map (2.2, 2.3)
 
     def map_meta(self) -> MapMeta:
         """The map's geometry, version, stamp and settings."""
-        r = self._json("GET", "/v1/map/meta")
-        origin = r.child("origin")
-        return MapMeta(
-            resolution=r.get("resolution", float),
-            width=r.get("width", int),
-            height=r.get("height", int),
-            origin_x=origin.get("x", float),
-            origin_y=origin.get("y", float),
-            origin_yaw=origin.get("yaw", float),
-            frame=r.get("frame", str),
-            stamp=r.get("stamp", float, nullable=True),
-            version=r.get("version", int),
-            sensor_model=r.get("sensor_model", dict),
-            decay=r.get("decay", dict),
-            inflation=r.get("inflation", dict),
-            thresholds=r.get("thresholds", dict),
-        )
+        return self._json("GET", "/v1/map/meta", MapMeta)
 
     def occupancy(self, at: float | None = None) -> Grid:
         """The OccupancyGrid (int8) evaluated at stamp ``at`` [s] (default: the map's now)."""
@@ -398,12 +276,8 @@ class MapClient:
         """Patches of the costmap cells changed after version ``since``."""
         if isinstance(since, bool) or not isinstance(since, int | np.integer):
             raise ValueError(f"since must be an integer costmap version, got {since!r}")
-        r = self._json("GET", "/v1/costmap/updates", params={"since": int(since)})
-        version = r.get("version", int)
-        stamp = r.get("stamp", float, nullable=True, required=False)
-        if r.get("full", bool, required=False):
-            return CostmapUpdates(version, None, True, stamp)
-        return CostmapUpdates(version, [_patch(p) for p in r.items("patches")], False, stamp)
+        params = {"since": int(since)}
+        return self._json("GET", "/v1/costmap/updates", CostmapUpdates, params=params)
 
     def follow_costmap(self, local: Grid | None) -> Grid:
         """Bring a costmap fetched by ``costmap()`` (or None) up to the server's latest.
@@ -419,7 +293,7 @@ class MapClient:
         if local.data.dtype != np.uint8:
             raise ValueError(f"follow_costmap needs a uint8 costmap, got dtype {local.data.dtype}")
         updates = self.costmap_updates(local.version)
-        if updates.full or updates.patches is None:
+        if updates.full:
             return self.costmap()
         if not updates.patches and updates.version == local.version:
             return local  # nothing changed: the local grid (immutable) is current
@@ -431,7 +305,7 @@ class MapClient:
                     f"patch exceeds the {costs.shape[1]} x {costs.shape[0]} local grid",
                     (patch.x0, patch.y0, patch.width, patch.height),
                 )
-            patch.apply_to(costs)
+            patch.to_patch().apply_to(costs)
         costs.flags.writeable = False
         return Grid(costs, local.geometry, updates.version, updates.stamp)
 
@@ -439,7 +313,7 @@ class MapClient:
 
     def query_cells(
         self, points: Sequence[Sequence[float]] | np.ndarray, at: float | None = None
-    ) -> list[CellInfo]:
+    ) -> list[CellOut]:
         """State, probability, cost and freshness of the cells at ``points`` [(x, y) m].
 
         at: stamp [s] to evaluate decay at (default: the map's now).
@@ -447,34 +321,15 @@ class MapClient:
         body: dict[str, Any] = {"points": _rows("points", points, 2)}
         if at is not None:
             body["at"] = float(at)
-        reply = self._json("POST", "/v1/query/cells", body=body)
-        cells = _same_count(reply, "cells", len(body["points"]))
-        return [
-            CellInfo(
-                x=c.get("x", float),
-                y=c.get("y", float),
-                state=c.get("state", str),
-                p_occ=c.get("p_occ", float, nullable=True),
-                cost=c.get("cost", int, nullable=True),
-                last_observed=c.get("last_observed", float, nullable=True),
-                age=c.get("age", float, nullable=True),
-            )
-            for c in cells
-        ]
+        reply = self._json("POST", "/v1/query/cells", CellsOut, body=body)
+        return _same_count("POST /v1/query/cells", "cells", reply.cells, len(body["points"]))
 
-    def query_segments(self, segments: Sequence[Sequence[float]] | np.ndarray) -> list[SegmentInfo]:
+    def query_segments(self, segments: Sequence[Sequence[float]] | np.ndarray) -> list[SegmentOut]:
         """Cost, blockage and unknown share along each segment ``(x0, y0, x1, y1)`` [m]."""
         body = {"segments": _rows("segments", segments, 4)}
-        reply = self._json("POST", "/v1/query/segments", body=body)
-        return [
-            SegmentInfo(
-                max_cost=s.get("max_cost", int, nullable=True),
-                blocked=s.get("blocked", bool),
-                unknown_fraction=s.get("unknown_fraction", float),
-                first_blocked=s.point("first_blocked", nullable=True),
-            )
-            for s in _same_count(reply, "segments", len(body["segments"]))
-        ]
+        reply = self._json("POST", "/v1/query/segments", SegmentsOut, body=body)
+        sent = len(body["segments"])
+        return _same_count("POST /v1/query/segments", "segments", reply.segments, sent)
 
     # -- planning (2.6)
 
@@ -485,7 +340,7 @@ class MapClient:
         algorithm: str = "astar",
         allow_unknown: bool = True,
         unit_id: str | None = None,
-    ) -> PlanResult:
+    ) -> PlanOut:
         """A path from ``start`` to ``goal`` [(x, y) m] on the server's costmap.
 
         algorithm: "astar" or "dijkstra"; allow_unknown: may the path cross unknown cells;
@@ -499,17 +354,7 @@ class MapClient:
         }
         if unit_id is not None:
             body["unit_id"] = unit_id
-        r = self._json("POST", "/v1/plan", body=body)
-        return PlanResult(
-            found=r.get("found", bool),
-            path=r.points("path"),
-            length=r.get("length", float, nullable=True),
-            cost=r.get("cost", float, nullable=True),
-            min_clearance=r.get("min_clearance", float, nullable=True),
-            expanded=r.get("expanded", int),
-            planning_ms=r.get("planning_ms", float),
-            map_version=r.get("map_version", int),
-        )
+        return self._json("POST", "/v1/plan", PlanOut, body=body)
 
     # -- units (project extension, for the viewer)
 
@@ -519,26 +364,11 @@ class MapClient:
         bodies = [_unit_body(f"units[{i}]", unit) for i, unit in enumerate(units)]
         if not bodies:
             return 0
-        reply = self._json("POST", "/v1/units", body={"units": bodies})
-        return reply.get("tracked", int)
+        return self._json("POST", "/v1/units", UnitsAck, body={"units": bodies}).tracked
 
     def units(self) -> list[UnitState]:
         """The latest published state of every unit, ordered by ``unit_id``."""
-        reply = self._json("GET", "/v1/units")
-        states = []
-        for r in reply.items("units"):
-            pose = r.child("pose")
-            states.append(
-                UnitState(
-                    unit_id=r.get("unit_id", str),
-                    stamp=r.get("stamp", float),
-                    pose=Pose2D(pose.get("x", float), pose.get("y", float), pose.get("yaw", float)),
-                    path=tuple(r.points("path")),
-                    frozen=r.get("frozen", bool),
-                    reason=r.get("reason", str, nullable=True),
-                )
-            )
-        return states
+        return self._json("GET", "/v1/units", UnitsOut).units
 
     # -- operations (2.7)
 
@@ -614,20 +444,18 @@ class MapClient:
         self,
         method: str,
         path: str,
-        params: Mapping[str, Any] | None = None,
+        model: type[Reply],
         body: Any = None,
+        params: Mapping[str, Any] | None = None,
         fast: bool = False,
-    ) -> _Fields:
-        """A request whose reply is a JSON object."""
-        endpoint = f"{method} {path}"
+    ) -> Reply:
+        """A request whose reply is the JSON object ``model`` (a schema of the API),
+        validated strictly: a reply that breaks it is a ``MapProtocolError``."""
         response = self._send(method, path, params, body, fast)
         try:
-            data = json.loads(response.content)
-        except ValueError:
-            raise MapProtocolError(endpoint, "reply is not JSON", response.text) from None
-        if not isinstance(data, dict):
-            raise MapProtocolError(endpoint, "reply is not a JSON object", data)
-        return _Fields(endpoint, data)
+            return model.model_validate_json(response.content, strict=True)
+        except ValidationError as exc:
+            raise _protocol_error(f"{method} {path}", exc, response.text) from None
 
     def _raw_grid(self, path: str, at: float | None, dtype: type[np.generic]) -> Grid:
         """``GET path?format=raw[&at=]``: bytes plus ``X-Map-*`` headers."""
@@ -668,89 +496,23 @@ class MapClient:
 
 # ---------------------------------------------------------------------------- parsing
 
-_KINDS: dict[type, str] = {
-    bool: "a boolean",
-    int: "an integer",
-    float: "a number",
-    str: "a string",
-    dict: "an object",
-    list: "a list",
-}
+Reply = TypeVar("Reply", bound=BaseModel)
+Item = TypeVar("Item")
 
 
-def _is_kind(value: Any, kind: type) -> bool:
-    if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if kind is float:
-        return isinstance(value, int | float) and not isinstance(value, bool)
-    return isinstance(value, kind)
-
-
-@dataclass(frozen=True)
-class _Fields:
-    """A JSON object of a reply at ``where`` (e.g. ``cells[2]``); typed field access."""
-
-    endpoint: str
-    data: Mapping[str, Any]
-    where: str = ""
-
-    def _name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def get(self, key: str, kind: type, nullable: bool = False, required: bool = True) -> Any:
-        """Field ``key`` checked to be of ``kind`` (floats returned as float).
-
-        nullable: null is accepted (returned as None); required=False: a missing field
-        is None.
-        """
-        if key not in self.data:
-            if not required:
-                return None
-            raise MapProtocolError(
-                self.endpoint,
-                f"field {self._name(key)!r} is missing (fields present)",
-                sorted(self.data),
-            )
-        value = self.data[key]
-        if value is None and nullable:
-            return None
-        if not _is_kind(value, kind):
-            raise MapProtocolError(
-                self.endpoint, f"field {self._name(key)!r} must be {_KINDS[kind]}", value
-            )
-        return float(value) if kind is float else value
-
-    def child(self, key: str) -> _Fields:
-        """The nested object ``key``."""
-        return _Fields(self.endpoint, self.get(key, dict), self._name(key))
-
-    def items(self, key: str) -> list[_Fields]:
-        """The list of objects ``key``."""
-        values = self.get(key, list)
-        name = self._name(key)
-        for i, value in enumerate(values):
-            if not isinstance(value, dict):
-                raise MapProtocolError(self.endpoint, f"{name}[{i}] must be an object", value)
-        return [_Fields(self.endpoint, v, f"{name}[{i}]") for i, v in enumerate(values)]
-
-    def point(self, key: str, nullable: bool = False) -> tuple[float, float] | None:
-        """The ``[x, y]`` field ``key`` as a tuple [m]."""
-        value = self.get(key, list, nullable=nullable)
-        if value is None:
-            return None
-        return self._pair(value, self._name(key))
-
-    def points(self, key: str) -> list[tuple[float, float]]:
-        """The ``[[x, y], ...]`` field ``key`` as tuples [m]."""
-        name = self._name(key)
-        return [self._pair(value, f"{name}[{i}]") for i, value in enumerate(self.get(key, list))]
-
-    def _pair(self, value: Any, name: str) -> tuple[float, float]:
-        if not (
-            isinstance(value, list) and len(value) == 2 and all(_is_kind(v, float) for v in value)
-        ):
-            raise MapProtocolError(self.endpoint, f"{name} must be [x, y] numbers", value)
-        return (float(value[0]), float(value[1]))
+def _protocol_error(endpoint: str, exc: ValidationError, text: str) -> MapProtocolError:
+    """The first problem pydantic found in a reply, as the client's protocol error: the
+    field (``cells[2].state``), what is wrong and the value sent."""
+    error = exc.errors(include_url=False)[0]
+    if error["type"] == "json_invalid":
+        return MapProtocolError(endpoint, "reply is not JSON", text)
+    field = dotted(error["loc"])
+    if error["type"] == "missing":
+        present = sorted(error["input"]) if isinstance(error["input"], dict) else error["input"]
+        return MapProtocolError(endpoint, f"field {field!r} is missing (fields present)", present)
+    where = f"field {field!r}" if field else "reply"
+    reason = error["ctx"]["error"] if error["type"] == "value_error" else error["msg"]
+    return MapProtocolError(endpoint, f"{where}: {reason}", error["input"])
 
 
 @dataclass(frozen=True)
@@ -788,37 +550,11 @@ def _detail(response: httpx.Response) -> Any:
     return data
 
 
-def _ack(r: _Fields) -> ScanAck:
-    return ScanAck(seq=r.get("seq", int), map_version=r.get("map_version", int))
-
-
-def _patch(r: _Fields) -> Patch:
-    """A ``{"x0", "y0", "width", "height", "data"}`` patch; data row-major uint8 values."""
-    x0, y0 = r.get("x0", int), r.get("y0", int)
-    width, height = r.get("width", int), r.get("height", int)
-    if x0 < 0 or y0 < 0 or width < 1 or height < 1:
-        raise MapProtocolError(
-            r.endpoint, f"{r.where} needs x0, y0 >= 0 and width, height >= 1", dict(r.data)
-        )
-    values = r.get("data", list)
-    if len(values) != width * height:
-        raise MapProtocolError(
-            r.endpoint,
-            f"{r.where}.data must hold width * height = {width * height} values",
-            len(values),
-        )
-    data = np.array(values)
-    if data.dtype.kind not in "iu" or data.min() < 0 or data.max() > 255:
-        raise MapProtocolError(r.endpoint, f"{r.where}.data must be integers 0..255", values)
-    return Patch(x0, y0, width, height, data.astype(np.uint8).reshape(height, width))
-
-
-def _same_count(reply: _Fields, key: str, sent: int) -> list[_Fields]:
-    """The list of objects ``key``, which must hold one entry per item sent."""
-    items = reply.items(key)
+def _same_count(endpoint: str, key: str, items: list[Item], sent: int) -> list[Item]:
+    """``items``, the reply's list ``key``, which must hold one entry per item sent."""
     if len(items) != sent:
         raise MapProtocolError(
-            reply.endpoint, f"one answer per item asked ({sent}) in {key!r}", len(items)
+            endpoint, f"one answer per item asked ({sent}) in {key!r}", len(items)
         )
     return items
 
@@ -841,18 +577,10 @@ def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
 
 
 def _unit_body(name: str, unit: UnitState) -> dict[str, Any]:
-    """A UnitState as the JSON object of ``POST /v1/units``; ValueError names a bad field."""
+    """A UnitState as the JSON object of ``POST /v1/units`` (the model checked its fields)."""
     if not isinstance(unit, UnitState):
         raise TypeError(f"{name} must be a UnitState, got {type(unit).__name__}: {_short(unit)}")
-    x, y, yaw = _row(f"{name}.pose", (unit.pose.x, unit.pose.y, unit.pose.yaw), 3)
-    return {
-        "unit_id": unit.unit_id,
-        "stamp": _row(f"{name}.stamp", (unit.stamp,), 1)[0],
-        "pose": {"x": x, "y": y, "yaw": yaw},
-        "path": _rows(f"{name}.path", unit.path, 2),
-        "frozen": bool(unit.frozen),
-        "reason": unit.reason,
-    }
+    return unit.model_dump(mode="json")
 
 
 def _rows(name: str, values: Iterable[Iterable[float]], n: int) -> list[list[float]]:

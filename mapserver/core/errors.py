@@ -32,3 +32,11 @@ class FieldError(FleetmapError, ValueError):
     def detail(self) -> str:
         """``reason, got value``: the message without the field's name."""
         return f"{self.reason}, got {self.value!r}"
+
+
+def dotted(path: tuple[str | int, ...]) -> str:
+    """A field's place as text: ``("events", 1, "at")`` -> ``events[1].at``; ``()`` -> ``""``."""
+    text = ""
+    for part in path:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text

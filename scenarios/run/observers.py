@@ -102,7 +102,7 @@ class PlanChecker(_Observer):
 class FreezeWatch(_Observer):
     """The freeze detector (``planner.freeze``), fed every unit's state each step, and
     the map's evidence of each blocking cell, read when a unit is first blocked by it
-    (``evidence``: (unit, point) -> (stamp, CellInfo))."""
+    (``evidence``: (unit, point) -> (stamp, CellOut))."""
 
     def __init__(self) -> None:
         self.detector = FreezeDetector()
@@ -225,8 +225,8 @@ class UnitPublisher(_Observer):
         states = []
         for uid, unit in episode.sim.units.items():
             plan = episode.agents[uid].navigator.last_plan
-            path = tuple(plan.path) if plan is not None and plan.found else ()
-            states.append(UnitState(uid, now, unit.drive.pose, path, uid in frozen))
+            path = plan.path if plan is not None and plan.found else ()
+            states.append(UnitState.of(uid, now, unit.drive.pose, path, uid in frozen))
         episode.client.publish_units(states)
 
 

@@ -15,7 +15,7 @@ from planner.coordinator import LaneCoordinator
 from planner.freeze import Freeze
 from scenarios.run.record import BlockingCell, FreezeRecord, RecoveryStep
 
-# (unit_id, point) -> (stamp [s] read, mapserver.client.CellInfo), or a list of such
+# (unit_id, point) -> (stamp [s] read, mapserver.client.CellOut), or a list of such
 # readings (one per freeze that named the point; the one read during a freeze is its)
 Reading = tuple[float, object]
 Evidence = Mapping[tuple[str, tuple[float, float]], Reading | Sequence[Reading]]

@@ -122,8 +122,8 @@ def test_a_new_scan_appears_without_a_reload(page, server):
 
 def test_units_are_drawn_with_their_paths_and_frozen_units_are_marked(page, server):
     states = [
-        UnitState("u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05))),
-        UnitState(
+        UnitState.of("u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05))),
+        UnitState.of(
             "u7", 4.0, Pose2D(25.05, 5.05, 1.0), frozen=True, reason="no path: aisle blocked"
         ),
     ]

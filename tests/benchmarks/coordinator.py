@@ -37,7 +37,7 @@ import networkx as nx
 import numpy as np
 
 from fleet.boxworld import warehouse_layout
-from mapserver.client import SegmentInfo
+from mapserver.client import SegmentOut
 from mapserver.core.costvalues import LETHAL
 from planner.coordinator import LaneCoordinator
 from planner.lane_graph import Lane, LaneGraph
@@ -53,14 +53,20 @@ class BlockedLanes:
             pa, pb = graph.position(a), graph.position(b)
             self._lane_of[(*pa, *pb)] = self._lane_of[(*pb, *pa)] = (a, b)
 
-    def query_segments(self, segments: list) -> list[SegmentInfo]:
+    def query_segments(self, segments: list) -> list[SegmentOut]:
         out = []
         for x0, y0, x1, y1 in segments:
             if self._lane_of[(x0, y0, x1, y1)] in self.blocked:
                 mid = ((x0 + x1) / 2, (y0 + y1) / 2)
-                out.append(SegmentInfo(int(LETHAL), True, 0.0, mid))
+                out.append(
+                    SegmentOut(
+                        max_cost=int(LETHAL), blocked=True, unknown_fraction=0.0, first_blocked=mid
+                    )
+                )
             else:
-                out.append(SegmentInfo(0, False, 0.0, None))
+                out.append(
+                    SegmentOut(max_cost=0, blocked=False, unknown_fraction=0.0, first_blocked=None)
+                )
         return out
 
 

@@ -15,7 +15,7 @@ import pytest
 from conftest import make_scan
 
 from mapserver.client import (
-    CellInfo,
+    CellOut,
     Conflict,
     Forbidden,
     Grid,
@@ -26,9 +26,9 @@ from mapserver.client import (
     MapRequestError,
     MapServerError,
     MapServerUnavailable,
-    PlanResult,
+    PlanOut,
     ScanAck,
-    SegmentInfo,
+    SegmentOut,
     Unauthorized,
 )
 from mapserver.core.geometry import GridGeometry
@@ -112,6 +112,7 @@ class FakeMapServer:
             "frame": "map",
             "stamp": self.stamp,
             "version": self.version,
+            "policy": "decay",
             "sensor_model": {"p_hit": 0.7, "p_miss": 0.4},
             "decay": {"policy": "decay", "half_life_occupied": 30.0},
             "inflation": {"inflation_radius": 0.55},
@@ -268,7 +269,11 @@ def test_post_scans_sends_one_batch_and_returns_one_ack_per_scan_in_order():
     server = FakeMapServer()
     scans = [make_scan([1.0], stamp=float(t)) for t in range(3)]
     acks = server.client().post_scans(scans)
-    assert acks == [ScanAck(10, 50), ScanAck(11, 51), ScanAck(12, 52)]
+    assert acks == [
+        ScanAck(seq=10, map_version=50),
+        ScanAck(seq=11, map_version=51),
+        ScanAck(seq=12, map_version=52),
+    ]
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/scans/batch")
     assert [s["stamp"] for s in body_of(server.last)["scans"]] == [0.0, 1.0, 2.0]
 
@@ -294,7 +299,7 @@ def test_map_meta_parses_every_contract_field():
     meta = server.client().map_meta()
     assert (server.last.method, server.last.url.path) == ("GET", "/v1/map/meta")
     assert meta.geometry == GEOMETRY
-    assert (meta.origin_yaw, meta.frame, meta.stamp, meta.version) == (0.0, "map", 12.5, 1)
+    assert (meta.origin.yaw, meta.frame, meta.stamp, meta.version) == (0.0, "map", 12.5, 1)
     assert meta.sensor_model == {"p_hit": 0.7, "p_miss": 0.4}
     assert meta.decay["policy"] == "decay"
     assert meta.inflation == {"inflation_radius": 0.55}
@@ -380,7 +385,7 @@ def test_costmap_updates_parse_patches_as_uint8_boxes():
         {"since": "1"},
     )
     assert (updates.version, updates.full) == (2, False)
-    (patch,) = updates.patches
+    (patch,) = (p.to_patch() for p in updates.patches)
     assert (patch.x0, patch.y0, patch.width, patch.height) == (1, 2, 1, 1)
     assert patch.data.dtype == np.uint8 and patch.data.tolist() == [[254]]
 
@@ -388,16 +393,28 @@ def test_costmap_updates_parse_patches_as_uint8_boxes():
 def test_costmap_updates_report_full_when_the_server_lost_the_version():
     server = FakeMapServer()
     updates = server.client().costmap_updates(since=99)
-    assert (updates.full, updates.patches, updates.version) == (True, None, 1)
+    assert (updates.full, updates.patches, updates.version) == (True, [], 1)
 
 
 @pytest.mark.parametrize(
     ("patch", "message"),
     [
-        ({"x0": 0, "y0": 0, "width": 2, "height": 1, "data": [1]}, "= 2 values, got 1$"),
-        ({"x0": 0, "y0": 0, "width": 1, "height": 1, "data": [256]}, "0..255"),
-        ({"x0": 0, "y0": 0, "width": 1, "height": 1, "data": [1.5]}, "0..255"),
-        ({"x0": -1, "y0": 0, "width": 1, "height": 1, "data": [1]}, "x0, y0 >= 0"),
+        (
+            {"x0": 0, "y0": 0, "width": 2, "height": 1, "data": [1]},
+            "patches\\[0\\]': data must hold width \\* height = 2 values, not 1, got",
+        ),
+        (
+            {"x0": 0, "y0": 0, "width": 1, "height": 1, "data": [256]},
+            "data\\[0\\]': Input should be less than or equal to 255, got 256$",
+        ),
+        (
+            {"x0": 0, "y0": 0, "width": 1, "height": 1, "data": [1.5]},
+            "data\\[0\\]': Input should be a valid integer, got 1.5$",
+        ),
+        (
+            {"x0": -1, "y0": 0, "width": 1, "height": 1, "data": [1]},
+            "x0': Input should be greater than or equal to 0, got -1$",
+        ),
         ({"x0": 0, "y0": 0, "width": 1, "data": [1]}, "'patches\\[0\\].height' is missing"),
     ],
 )
@@ -469,8 +486,10 @@ def test_query_cells_sends_points_and_at_and_parses_each_cell():
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/query/cells")
     assert body_of(server.last) == {"points": [[-0.75, 2.25], [50.0, 50.0]], "at": 13.0}
     assert cells == [
-        CellInfo(-0.75, 2.25, "occupied", 0.9, 0, 10.0, 2.5),
-        CellInfo(50.0, 50.0, "outside", None, None, None, None),
+        CellOut(x=-0.75, y=2.25, state="occupied", p_occ=0.9, cost=0, last_observed=10.0, age=2.5),
+        CellOut(
+            x=50.0, y=50.0, state="outside", p_occ=None, cost=None, last_observed=None, age=None
+        ),
     ]
 
 
@@ -494,8 +513,8 @@ def test_query_segments_sends_segments_and_parses_each_answer():
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/query/segments")
     assert body_of(server.last) == {"segments": [[0.0, 2.0, 1.0, 2.5], [-1.0, 2.0, -0.5, 2.0]]}
     assert found == [
-        SegmentInfo(254, True, 0.25, (1.0, 2.5)),
-        SegmentInfo(3, False, 0.25, None),
+        SegmentOut(max_cost=254, blocked=True, unknown_fraction=0.25, first_blocked=[1.0, 2.5]),
+        SegmentOut(max_cost=3, blocked=False, unknown_fraction=0.25, first_blocked=None),
     ]
 
 
@@ -519,9 +538,9 @@ def test_plan_sends_the_contract_request_and_parses_the_result():
         "allow_unknown": True,
         "unit_id": "u3",
     }
-    assert result == PlanResult(
+    assert result == PlanOut(
         found=True,
-        path=[(-0.5, 2.5), (0.0, 3.0), (0.5, 3.0)],
+        path=[[-0.5, 2.5], [0.0, 3.0], [0.5, 3.0]],
         length=2.5,
         cost=17.0,
         min_clearance=0.3,
@@ -551,7 +570,9 @@ def test_a_mistyped_reply_field_is_a_protocol_error_carrying_the_value():
         "map_version": 1,
     }
     client = replying(reply)
-    with pytest.raises(MapProtocolError, match="'found' must be a boolean, got 'yes'") as err:
+    with pytest.raises(
+        MapProtocolError, match="field 'found': Input should be a valid boolean, got 'yes'$"
+    ) as err:
         client.plan((0, 0), (1, 1))
     assert err.value.value == "yes"
 

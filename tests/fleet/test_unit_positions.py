@@ -10,7 +10,7 @@ from server_helpers import JSON, small_settings
 
 from mapserver.api.app import create_app
 from mapserver.api.unit_board import UnitBoard, UnitBoardError
-from mapserver.client import Forbidden, InvalidRequest, MapClient, UnitState
+from mapserver.client import Forbidden, InvalidRequest, MapClient, UnitPose, UnitState
 from mapserver.core.scan import Pose2D
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
@@ -134,8 +134,8 @@ def test_the_board_refuses_new_units_beyond_its_capacity_but_updates_known_ones(
 
 def test_map_client_publishes_and_reads_typed_unit_states(client):
     states = [
-        UnitState("u1", 1.0, Pose2D(2.0, 3.0, 0.5), ((2.0, 3.0), (4.0, 3.0))),
-        UnitState("u2", 1.5, Pose2D(8.0, 1.0, -1.0), frozen=True, reason="lane a3 blocked"),
+        UnitState.of("u1", 1.0, Pose2D(2.0, 3.0, 0.5), ((2.0, 3.0), (4.0, 3.0))),
+        UnitState.of("u2", 1.5, Pose2D(8.0, 1.0, -1.0), frozen=True, reason="lane a3 blocked"),
     ]
     assert MapClient(client, token=UNIT).publish_units(states) == 2
     assert MapClient(client, token=READER).units() == states
@@ -145,12 +145,19 @@ def test_map_client_publishes_and_reads_typed_unit_states(client):
 def test_map_client_raises_the_servers_refusals_and_checks_fields_locally(client):
     reader = MapClient(client, token=READER)
     with pytest.raises(Forbidden):
-        reader.publish_units([UnitState("u1", 1.0, Pose2D(0.0, 0.0, 0.0))])
+        reader.publish_units([UnitState.of("u1", 1.0, Pose2D(0.0, 0.0, 0.0))])
+    # the wire model checks a state where it is made ...
+    with pytest.raises(ValueError, match=r"stamp\n  Input should be a finite number"):
+        UnitState.of("u1", math.nan, Pose2D(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"path\.1\n  List should have at least 2 items"):
+        UnitState.of("u1", 1.0, Pose2D(0.0, 0.0, 0.0), ((1, 2), (3,)))
+    # ... and the server checks it again: one left unchecked is refused, naming the field
+    unchecked = UnitState.model_construct(
+        unit_id="u1", stamp=math.nan, pose=UnitPose(x=0.0, y=0.0, yaw=0.0), path=[]
+    )
     writer = MapClient(client, token=UNIT)
     with pytest.raises(InvalidRequest) as refused:
-        writer.publish_units([UnitState("u1", math.nan, Pose2D(0.0, 0.0, 0.0))])
+        writer.publish_units([unchecked])
     assert refused.value.status == 422 and "units.0.stamp" in refused.value.detail
-    with pytest.raises(ValueError, match=r"units\[0\]\.path\[1\]"):
-        writer.publish_units([UnitState("u1", 1.0, Pose2D(0.0, 0.0, 0.0), ((1, 2), (3,)))])
     with pytest.raises(TypeError, match=r"units\[0\] must be a UnitState"):
         writer.publish_units([unit()])

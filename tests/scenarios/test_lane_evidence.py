@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 from lane_helpers import Drive, FakeMap
 
-from mapserver.client import CellInfo
+from mapserver.client import CellOut
 from mapserver.core.geometry import GridGeometry
 from planner.coordinator import LaneCoordinator
 from planner.freeze import FreezeDetector, LaneBlock, UnitObservation
@@ -30,6 +30,14 @@ POSITIONS = {
 }
 LANES = [("a", "b"), ("b", "c"), ("b", "a8"), ("a8", "a9"), ("a9", "c"), ("a", "p")]
 OBSTACLES = [(4.0, 0.0), (5.0, 0.0), (6.0, 1.5), (0.0, 1.5)]
+
+
+def occupied(point, last_observed, age):
+    """A map server's answer for an occupied cell at ``point`` [m]."""
+    x, y = point
+    return CellOut(
+        x=x, y=y, state="occupied", p_occ=0.9, cost=254, last_observed=last_observed, age=age
+    )
 
 
 def no_route_unit():
@@ -141,7 +149,7 @@ def test_a_lane_freeze_in_freezes_json_names_its_lanes_and_their_cells(tmp_path)
             seen = 1.5 if point == (5.0, 0.0) else None
             evidence.setdefault(
                 ("u1", point),
-                (stamp, CellInfo(*point, "occupied", 0.9, 254, seen, None)),
+                (stamp, occupied(point, seen, None)),
             )
     (freeze,) = detector.finish(1.5)
     assert freeze.lanes == [("b", "c"), ("a9", "c")]
@@ -180,7 +188,7 @@ def test_each_freeze_gets_the_evidence_read_during_it_not_at_an_earlier_freeze()
             since = detector.open_since("u1")
             readings = evidence.setdefault(("u1", point), [])
             if not any(s >= since for s, _ in readings):
-                readings.append((stamp, CellInfo(*point, "occupied", 0.9, 254, stamp, 0.0)))
+                readings.append((stamp, occupied(point, stamp, 0.0)))
     assert detector.open_since("u1") == 3.0 and detector.open_since("u2") is None
     detector.finish(4.75)
     first, second = detector.freezes
