@@ -32,6 +32,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from mapserver.core.traversal import cell_of, clipped_cells, line_next, line_start
+
 
 class KernelGrid(NamedTuple):
     """The grid as the kernels see it: width, height [cells], origin [m], resolution [m]."""
@@ -101,101 +103,21 @@ POLICY_STICKY = 2
 
 
 @njit(cache=True, nogil=True)
-def clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax):
-    """Liang-Barsky clip of segment (x0,y0)-(x1,y1) to the box; returns (ok, t0, t1)."""
-    t0 = 0.0
-    t1 = 1.0
-    dx = x1 - x0
-    dy = y1 - y0
-    for k in range(4):
-        if k == 0:
-            p, q = -dx, x0 - xmin
-        elif k == 1:
-            p, q = dx, xmax - x0
-        elif k == 2:
-            p, q = -dy, y0 - ymin
-        else:
-            p, q = dy, ymax - y0
-        if p == 0.0:
-            if q < 0.0:
-                return False, t0, t1
-        else:
-            r = q / p
-            if p < 0.0:
-                if r > t1:
-                    return False, t0, t1
-                if r > t0:
-                    t0 = r
-            else:
-                if r < t0:
-                    return False, t0, t1
-                if r < t1:
-                    t1 = r
-    return True, t0, t1
-
-
-@njit(cache=True, nogil=True)
-def cell_of(v, origin, inv_res, n):
-    """Cell index along one axis of coordinate v [m], clamped into [0, n - 1]."""
-    c = int(math.floor((v - origin) * inv_res))
-    if c < 0:
-        return 0
-    if c >= n:
-        return n - 1
-    return c
-
-
-@njit(cache=True, nogil=True, inline="always")
-def clipped_cells(x0, y0, x1, y1, origin_x, origin_y, resolution, width, height):
-    """Segment (x0, y0)-(x1, y1) [m] clipped to the map: (ok, t0, t1, c0, r0, c1, r1),
-    the kept part's fractions along it and the cells of its two ends (ok False: none)."""
-    inv_res = 1.0 / resolution
-    ok, t0, t1 = clip_segment(
-        x0, y0, x1, y1, origin_x, origin_y,
-        origin_x + width * resolution, origin_y + height * resolution,
-    )  # fmt: skip
-    if not ok:
-        return False, t0, t1, 0, 0, 0, 0
-    dx = x1 - x0
-    dy = y1 - y0
-    c0 = cell_of(x0 + t0 * dx, origin_x, inv_res, width)
-    r0 = cell_of(y0 + t0 * dy, origin_y, inv_res, height)
-    c1 = cell_of(x0 + t1 * dx, origin_x, inv_res, width)
-    r1 = cell_of(y0 + t1 * dy, origin_y, inv_res, height)
-    return True, t0, t1, c0, r0, c1, r1
-
-
-@njit(cache=True, nogil=True)
 def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
-    """Bresenham from cell (c0, r0) to (c1, r1); raise weaker marks to ``mark``; returns
-    the new n (a cell enters ``touched`` once, when first marked). max_cells >= 0 stops
-    after that many cells of the same line (a prefix of it)."""
-    dc = c1 - c0
-    dr = r1 - r0
-    adc = abs(dc)
-    adr = abs(dr)
-    step_c = 1 if dc > 0 else -1
-    step_r = width if dr > 0 else -width
-    if adc >= adr:
-        major, minor, a, b = step_c, step_r, adc, adr
-    else:
-        major, minor, a, b = step_r, step_c, adr, adc
-    count = a + 1 if include_last else a
+    """The line of cells from (c0, r0) to (c1, r1) (``traversal.line_start``); raise weaker
+    marks to ``mark``; returns the new n (a cell enters ``touched`` once, when first
+    marked). max_cells >= 0 stops after that many cells of the same line (a prefix of it)."""
+    idx, cells, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
+    count = cells if include_last else cells - 1
     if max_cells >= 0 and max_cells < count:
         count = max_cells
-    idx = r0 * width + c0
-    err = a >> 1
     for _ in range(count):
         if marks[idx] < mark:
             if marks[idx] == MARK_NONE:
                 touched[n] = idx
                 n += 1
             marks[idx] = mark
-        err -= b
-        if err < 0:
-            idx += minor
-            err += a
-        idx += major
+        idx, err = line_next(idx, err, major, minor, a, b)
     return n
 
 

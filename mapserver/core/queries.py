@@ -6,8 +6,9 @@
 - Segments: for each segment, the highest known cost of the cells it crosses, whether a
   cell on it is lethal or inscribed (``blocked``), the share of its cells that are unknown
   (cells off the map count as unknown) and the first blocked cell's centre from its start.
-  Cells are those of the Bresenham line between the end points' cells, the traversal the
-  fusion kernel uses for beams.
+  Cells are those of the one traversal the fusion kernel uses for beams
+  (``mapserver.core.traversal``): the segment clipped to the map, then the Bresenham line
+  between its ends' cells.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ from numba import njit
 
 from mapserver.core.belief import BeliefGrid, CellSample, CellState
 from mapserver.core.costvalues import INSCRIBED, UNKNOWN
-from mapserver.core.fusion_kernel import cell_of, clip_segment
 from mapserver.core.geometry import GridGeometry
+from mapserver.core.traversal import clipped_cells, line_next, line_start
 
 STATE_NAMES = {CellState.FREE: "free", CellState.OCCUPIED: "occupied", CellState.UNKNOWN: "unknown"}
 
@@ -132,39 +133,27 @@ def query_segments(
     grid of ``geometry`` (the server's costmap or a planner's local copy)."""
     g = geometry
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    xmin, ymin, xmax, ymax = g.bounds
-    inside_ends = np.zeros((seg.shape[0], 4), dtype=np.int64)
-    on_map = np.zeros(seg.shape[0], dtype=bool)
-    total = np.ones(seg.shape[0])  # cells of the whole segment, on the map or off it
-    for i, (x0, y0, x1, y1) in enumerate(seg.tolist()):
-        span = max(abs(x1 - x0), abs(y1 - y0)) / g.resolution
-        total[i] = math.floor(span) + 1.0 if math.isfinite(span) else math.inf
-        ok, t0, t1 = clip_segment(x0, y0, x1, y1, xmin, ymin, xmax, ymax)
-        if ok:
-            on_map[i] = True
-            dx, dy, inv = x1 - x0, y1 - y0, 1.0 / g.resolution
-            inside_ends[i] = [
-                cell_of(x0 + t0 * dx, g.origin_x, inv, g.width),
-                cell_of(y0 + t0 * dy, g.origin_y, inv, g.height),
-                cell_of(x0 + t1 * dx, g.origin_x, inv, g.width),
-                cell_of(y0 + t1 * dy, g.origin_y, inv, g.height),
-            ]
-    max_cost, unknown, count, first = _segments_kernel(np.ascontiguousarray(costs), inside_ends)
+    with np.errstate(over="ignore", invalid="ignore"):  # a span past 1e308 m is infinite
+        span = np.maximum(np.abs(seg[:, 2] - seg[:, 0]), np.abs(seg[:, 3] - seg[:, 1]))
+        span /= g.resolution
+        total = np.where(np.isfinite(span), np.floor(span) + 1.0, math.inf)  # on or off the map
+    grid = (g.width, g.height, g.origin_x, g.origin_y, g.resolution)
+    flat = np.ascontiguousarray(costs).reshape(-1)
+    on_map, max_cost, unknown, count, first = _segments_kernel(flat, grid, seg)
     reports = []
     for i in range(seg.shape[0]):
         inside_cells = count[i] if on_map[i] else 0
         off_map = max(total[i] - inside_cells, 0.0)
-        blocked = on_map[i] and first[i, 0] >= 0
+        blocked = on_map[i] and first[i] >= 0
         known_max = max_cost[i] if on_map[i] else -1
         unknown_cells = (unknown[i] if on_map[i] else 0) + off_map
+        row, col = divmod(int(first[i]), g.width)
         reports.append(
             SegmentReport(
                 max_cost=None if known_max < 0 else int(known_max),
                 blocked=bool(blocked),
                 unknown_fraction=_fraction(unknown_cells, max(total[i], inside_cells)),
-                first_blocked=g.cell_to_world(int(first[i, 0]), int(first[i, 1]))
-                if blocked
-                else None,
+                first_blocked=g.cell_to_world(col, row) if blocked else None,
             )
         )
     return reports
@@ -176,39 +165,36 @@ def _fraction(part: float, whole: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _segments_kernel(costs, ends):
-    """Per segment of on-map cell ends (c0, r0, c1, r1): max known cost (-1 none), unknown
-    count, cell count, first blocked cell (col, row) or (-1, -1)."""
-    n = ends.shape[0]
+def _segments_kernel(costs, grid, segments):
+    """Per segment [m], over the cells of its part on the map (``traversal``): on the map
+    at all, max known cost (-1 none), unknown count, cell count and the flat index of the
+    first blocked cell (-1 none). ``costs`` is the flat row-major costmap; ``grid`` is
+    (width, height [cells], origin_x, origin_y [m], resolution [m/cell])."""
+    width, height, origin_x, origin_y, resolution = grid
+    n = segments.shape[0]
+    on_map = np.zeros(n, dtype=np.bool_)
     max_cost = np.full(n, -1, dtype=np.int64)
     unknown = np.zeros(n, dtype=np.int64)
     total = np.zeros(n, dtype=np.int64)
-    first = np.full((n, 2), -1, dtype=np.int64)
+    first = np.full(n, -1, dtype=np.int64)
     for i in range(n):
-        c, r, c1, r1 = ends[i, 0], ends[i, 1], ends[i, 2], ends[i, 3]
-        dc = abs(c1 - c)
-        dr = abs(r1 - r)
-        sc = 1 if c1 > c else -1
-        sr = 1 if r1 > r else -1
-        err = dc - dr
-        while True:
-            total[i] += 1
-            v = costs[r, c]
+        x0, y0, x1, y1 = segments[i, 0], segments[i, 1], segments[i, 2], segments[i, 3]
+        ok, _, _, c0, r0, c1, r1 = clipped_cells(
+            x0, y0, x1, y1, origin_x, origin_y, resolution, width, height
+        )
+        if not ok:
+            continue
+        on_map[i] = True
+        idx, cells, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
+        total[i] = cells
+        for _ in range(cells):
+            v = costs[idx]
             if v == UNKNOWN:
                 unknown[i] += 1
             else:
                 if v > max_cost[i]:
                     max_cost[i] = v
-                if v >= INSCRIBED and first[i, 0] < 0:
-                    first[i, 0] = c
-                    first[i, 1] = r
-            if c == c1 and r == r1:
-                break
-            e2 = 2 * err
-            if e2 > -dr:
-                err -= dr
-                c += sc
-            if e2 < dc:
-                err += dc
-                r += sr
-    return max_cost, unknown, total, first
+                if v >= INSCRIBED and first[i] < 0:
+                    first[i] = idx
+            idx, err = line_next(idx, err, major, minor, a, b)
+    return on_map, max_cost, unknown, total, first

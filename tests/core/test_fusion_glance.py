@@ -133,4 +133,25 @@ def test_the_guard_only_ever_clears_less_and_never_touches_a_hit(ranges, step_de
     assert np.array_equal(guarded > 0, unguarded > 0)  # the same cells hit
     assert not ((guarded < 0) & ~(unguarded < 0)).any()  # nothing cleared it did not clear
     cleared = guarded < 0
-    assert np.all(guarded[cleared] == unguarded[cleared])  # one update each, the same one
+    # one update each, never a stronger one: the same, or the weaker no-return update where
+    # the guard cut a return short and only a no-return beam still crosses the cell
+    assert np.all(guarded[cleared] >= unguarded[cleared])
+    updates = np.float32([GUARD.l_miss - GUARD.l0, GUARD.l_miss_no_return - GUARD.l0])
+    assert np.isin(guarded[cleared], updates).all()
+    assert np.isin(unguarded[cleared], updates).all()
+
+
+def test_a_cell_the_guard_keeps_from_a_return_may_still_take_a_neighbouring_no_return_pass():
+    """Found by the property above: the guard stops a glancing return short of the cell at
+    row 7, column 12; a no-return beam beside it still crosses that cell, so it is cleared
+    with the weaker no-return evidence instead of a return's."""
+    ranges = [1.0, math.inf, 1.0, math.inf, 1.0, 1.0, 2.0, 1.0, 0.5, math.inf]
+    maps = []
+    for model in (GUARD, NO_GUARD):
+        b = BeliefGrid(GEOMETRY, model, Policy.DECAY)
+        b.fuse(Scan("u1", 1.0, Pose2D(*SENSOR, 1.0), 0.0, math.radians(2.0), 0.05, 20.0,
+                    np.asarray(ranges)))  # fmt: skip
+        maps.append(b.raw_log_odds())
+    guarded, unguarded = maps
+    assert unguarded[7, 12] == np.float32(GUARD.l_miss - GUARD.l0)
+    assert guarded[7, 12] == np.float32(GUARD.l_miss_no_return - GUARD.l0)
