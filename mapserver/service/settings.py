@@ -30,7 +30,6 @@ from __future__ import annotations
 import ipaddress
 import math
 import os
-from abc import abstractmethod
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -41,8 +40,6 @@ from typing import Any, Literal
 
 import yaml
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     PrivateAttr,
     SecretStr,
@@ -50,7 +47,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic_core import PydanticCustomError
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -58,22 +55,27 @@ from pydantic_settings import (
 )
 
 from mapserver.core.belief import BeliefGrid
-from mapserver.core.errors import FieldError, FleetmapError
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import DEFAULT_MAX_BEAMS
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCANS
+from mapserver.service.validation import (
+    Section,
+    domain_section,
+    dotted,
+    error,
+    located,
+    mark_unknown_keys,
+    problems,
+)
 from mapserver.store.mapfiles import MapFileError, RosMap, read_ros_map
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8700
 DEFAULT_DATA_DIR = Path("fleetmap-data")
 MIB = 1024 * 1024
-
-_SENSOR = SensorModel()
-_DECAY = DecayParams()
-_INFLATION = InflationParams()
 
 # The YAML config file's contents while ``Settings.from_yaml`` builds an instance.
 _CONFIG_FILE_DATA: ContextVar[Mapping[str, Any]] = ContextVar(
@@ -111,92 +113,36 @@ class Role(StrEnum):
 
 
 # ---------------------------------------------------------------------------- sections
-class _Section(BaseModel):
-    """A nested group of settings; unknown names are errors."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class _DomainSection(_Section):
-    """Settings that mirror a domain class field for field, checked by that class.
-
-    ``build()`` constructs the domain object; a ``FieldError`` it raises becomes a
-    validation error located at the field it names.
-    """
-
-    @abstractmethod
-    def build(self) -> Any:
-        """The domain object with these values (each section names its class)."""
-
-    @model_validator(mode="after")
-    def _check_with_domain_class(self) -> _DomainSection:
-        try:
-            self.build()
-        except ValueError as exc:
-            raise _located_error(self, exc) from None
-        return self
-
-
-class GridSettings(_DomainSection):
+GridSettings = domain_section(
+    GridGeometry,
+    "GridSettings",
     """The grid when no ``map_yaml`` is given (the default: 100 m x 50 m at 5 cm).
 
     width, height: [cells]. resolution: [m/cell]. origin_x, origin_y: [m] world position
-    of the outer corner of cell (0, 0).
-    """
-
-    width: int = 2000
-    height: int = 1000
-    resolution: float = 0.05
-    origin_x: float = 0.0
-    origin_y: float = 0.0
-
-    def build(self) -> GridGeometry:
-        return GridGeometry(**self.model_dump())
-
-
-class SensorModelSettings(_DomainSection):
-    """The inverse sensor model (``SensorModel`` documents each value and its units)."""
-
-    p_hit: float = _SENSOR.p_hit
-    p_miss: float = _SENSOR.p_miss
-    prior: float = _SENSOR.prior
-    clamp_min: float = _SENSOR.clamp_min
-    clamp_max: float = _SENSOR.clamp_max
-    occupied_threshold: float = _SENSOR.occupied_threshold
-    free_threshold: float = _SENSOR.free_threshold
-    p_miss_no_return: float = _SENSOR.p_miss_no_return
-    no_return_range: float | None = _SENSOR.no_return_range
-    fill_between_beams: bool = _SENSOR.fill_between_beams
-    guard_glancing_faces: bool = _SENSOR.guard_glancing_faces
-
-    def build(self) -> SensorModel:
-        return SensorModel(**self.model_dump())
+    of the outer corner of cell (0, 0) (``GridGeometry``).
+    """,
+    width=2000,
+    height=1000,
+    resolution=0.05,
+)
+SensorModelSettings = domain_section(
+    SensorModel,
+    "SensorModelSettings",
+    "The inverse sensor model (``SensorModel`` documents each value and its units).",
+)
+DecaySettings = domain_section(
+    DecayParams,
+    "DecaySettings",
+    "Freshness decay of the ``decay`` policy: half lives [s], fade bound [log-odds].",
+)
+InflationSettings = domain_section(
+    InflationParams,
+    "InflationSettings",
+    "Nav2-style inflation (``InflationParams``): radii [m], cost_scaling_factor [1/m].",
+)
 
 
-class DecaySettings(_DomainSection):
-    """Freshness decay of the ``decay`` policy: half lives [s], fade bound [log-odds]."""
-
-    half_life_occupied: float = _DECAY.half_life_occupied
-    half_life_free: float = _DECAY.half_life_free
-    fade_bound: float = _DECAY.fade_bound
-
-    def build(self) -> DecayParams:
-        return DecayParams(**self.model_dump())
-
-
-class InflationSettings(_DomainSection):
-    """Nav2-style inflation (``InflationParams``): radii [m], cost_scaling_factor [1/m]."""
-
-    inflation_radius: float = _INFLATION.inflation_radius
-    cost_scaling_factor: float = _INFLATION.cost_scaling_factor
-    inscribed_radius: float = _INFLATION.inscribed_radius
-    inflate_unknown: bool = _INFLATION.inflate_unknown
-
-    def build(self) -> InflationParams:
-        return InflationParams(**self.model_dump())
-
-
-class TokenSettings(_Section):
+class TokenSettings(Section):
     """One bearer token: the secret, its role, and a name for logs and errors (never the
     secret; ``tokens[i]`` when not given).
 
@@ -228,14 +174,14 @@ class TokenSettings(_Section):
     @model_validator(mode="after")
     def _units_match_role(self) -> TokenSettings:
         if self.role is Role.UNIT and not self.units:
-            raise _error(
+            raise error(
                 ("units",),
                 self.units,
                 "a unit token must list the unit ids it may post as "
                 '(e.g. ["u1", "u2"], ["u*"] for a prefix, ["*"] for any unit)',
             )
         if self.role is not Role.UNIT and self.units is not None:
-            raise _error(
+            raise error(
                 ("units",), self.units, f"only unit tokens are bound to units, not {self.role}"
             )
         return self
@@ -260,7 +206,7 @@ class TokenSettings(_Section):
         return value
 
 
-class LimitsSettings(_Section):
+class LimitsSettings(Section):
     """Request limits: body size [bytes], beams per scan, scans per batch."""
 
     max_body_bytes: int = Field(default=2 * MIB, gt=0)
@@ -268,7 +214,7 @@ class LimitsSettings(_Section):
     max_batch: int = Field(default=256, gt=0)
 
 
-class ClockSettings(_Section):
+class ClockSettings(Section):
     """The fleet's clock (``mapserver.service.fleet_clock``): no single unit decides the map's time.
 
     max_lead_s: [s] how far a scan's stamp may lead the server's wall clock and the
@@ -280,7 +226,7 @@ class ClockSettings(_Section):
     window_scans: int = Field(default=DEFAULT_WINDOW_SCANS, gt=0)
 
 
-class ReadSettings(_Section):
+class ReadSettings(Section):
     """Heavy reads (cell and segment queries, plans) run on worker threads beside the
     ingest, never holding the map's lock while they compute; they are admitted so that
     they cannot starve scan ingest or ``/healthz``.
@@ -305,7 +251,7 @@ class ReadSettings(_Section):
     query_busy_share: float = Field(default=0.5, gt=0, le=1)
 
 
-class ServerSettings(_Section):
+class ServerSettings(Section):
     """How ``fleetmap serve`` treats connections and its log (docs/server-safety.md).
 
     keep_alive_s: [s] an idle keep-alive connection is closed this long after its last
@@ -335,7 +281,7 @@ class ServerSettings(_Section):
     log_interval_s: float = Field(default=60.0, gt=0, allow_inf_nan=False)
 
 
-class JournalSettings(_Section):
+class JournalSettings(Section):
     """Durability and history.
 
     synchronous: SQLite's ``FULL`` (acknowledged scans survive power loss), ``NORMAL``
@@ -424,6 +370,11 @@ class Settings(BaseSettings):
         with _config_file_data(read_config_file(path)):
             return cls(**overrides)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        return mark_unknown_keys(cls, data)
+
     @field_validator("host")
     @classmethod
     def _host_not_empty(cls, value: str) -> str:
@@ -434,7 +385,7 @@ class Settings(BaseSettings):
     @model_validator(mode="after")
     def _check_whole(self) -> Settings:
         if not self.tokens and not is_loopback(self.host):
-            raise _error(
+            raise error(
                 ("host",),
                 self.host,
                 "an open server (no tokens configured) may only bind a loopback address "
@@ -444,17 +395,17 @@ class Settings(BaseSettings):
         for i, token in enumerate(self.tokens):
             secret = token.token.get_secret_value()
             if secret in seen:
-                raise _error(("tokens", i, "token"), None, "duplicates an earlier token")
+                raise error(("tokens", i, "token"), None, "duplicates an earlier token")
             seen.add(secret)
         if self.map_yaml is not None:
             try:
                 self._static_map = read_ros_map(self.map_yaml)
             except (MapFileError, OSError) as exc:
-                raise _error(("map_yaml",), str(self.map_yaml), str(exc)) from None
+                raise error(("map_yaml",), str(self.map_yaml), str(exc)) from None
         try:  # the rules that join sensor model, policy, decay and clearing range
             self.belief_grid(GridGeometry(1, 1, 1.0))
         except ValueError as exc:
-            raise _located_error(self, exc) from None
+            raise located(self, exc) from None
         return self
 
     # ------------------------------------------------------------ domain objects
@@ -588,16 +539,8 @@ def load_settings(
 
 def located_errors(exc: ValidationError) -> list[tuple[str, str]]:
     """(field, ``problem, got value``) per pydantic error (token secrets hidden)."""
-    found = []
-    for error in exc.errors():
-        loc = error["loc"]
-        field = _dotted(loc) or "settings"
-        message = error["msg"]
-        secret = bool(loc) and loc[-1] == "token"
-        if "got " not in message and error["type"] != "missing" and not secret:
-            message = f"{message}, got {error['input']!r}"
-        found.append((field, message))
-    return found
+    found = problems(exc, "settings", hidden=lambda loc: bool(loc) and loc[-1] == "token")
+    return [(dotted(p.loc, "settings"), p.detail()) for p in found]
 
 
 def is_loopback(host: str) -> bool:
@@ -623,36 +566,3 @@ def _nest(overrides: Mapping[str, Any]) -> dict[str, Any]:
             target = target.setdefault(part, {})
         target[leaf] = value
     return nested
-
-
-def _dotted(loc: tuple[int | str, ...]) -> str:
-    text = ""
-    for part in loc:
-        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text
-
-
-def _error(loc: tuple[int | str, ...], value: Any, reason: str) -> ValidationError:
-    """A validation error at ``loc`` whose message is ``reason``."""
-    details = InitErrorDetails(
-        type=PydanticCustomError("invalid", "{reason}", {"reason": reason}), loc=loc, input=value
-    )
-    return ValidationError.from_exception_data("Settings", [details])
-
-
-def _located_error(model: BaseModel, exc: ValueError) -> ValidationError:
-    """A domain error as a validation error at the field it names.
-
-    A ``FieldError`` carries its field (``p_hit``, ``decay.fade_bound``); when that is a
-    field of ``model`` the error is placed there with its reason and value, else on
-    ``model`` with the whole message, as is any other ``ValueError``.
-    """
-    if not isinstance(exc, FieldError):
-        return _error((), None, str(exc))
-    value: Any = model
-    loc: tuple[str, ...] = ()
-    for part in exc.field.split("."):
-        if not isinstance(value, BaseModel) or part not in type(value).model_fields:
-            return _error((), None, str(exc))
-        value, loc = getattr(value, part), (*loc, part)
-    return _error(loc, value, exc.detail)

@@ -36,32 +36,23 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
+from pydantic import Discriminator, Field
 
 from fleet.layout import Kind, Layout, LayoutError, Obstacle
 from fleet.shapes import Box, Cylinder
 from fleet.world import World
-from scenarios.spec.yaml_lines import (
-    MISSING,
-    Document,
-    FieldPath,
-    Fields,
-    check_list,
-    check_number,
-    check_point,
-    is_number,
-)
+from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
+from scenarios.spec.yaml_lines import Document, FieldPath
 
 Point = tuple[float, float]
 
 DEFAULT_TOTE_M = (0.6, 0.4)
 """[m] a dropped tote's footprint when the event gives no ``size``."""
 PERSON_SPEED = 1.2  # [m/s] walking pace
-PERSON_SPEED_BOUNDS = {"low": 0.1, "high": 10.0}  # [m/s]
 PERSON_RADIUS = 0.25  # [m]
-PERSON_RADIUS_BOUNDS = {"low": 0.05, "high": 2.0}  # [m]
 FIXED_KINDS = (Kind.WALL, Kind.RACK)
 """Kinds a person's path may not pass through."""
 
@@ -268,91 +259,131 @@ class _Remove:
         world.remove(self.object_id)
 
 
-# ---------------------------------------------------------------------------- parsing
-_KEYS = {
-    "move": ("x", "y", "yaw"),
-    "drop": ("x", "y", "size", "yaw", "height"),
-    "remove": (),
-    "person": ("path", "speed", "radius", "height"),
-    "breakdown": ("duration",),
-}
-_REQUIRED = {"move": ("x", "y"), "drop": ("x", "y"), "person": ("path",)}
+# ---------------------------------------------------------------------------- the file
+_Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+PointField = Annotated[
+    list[Annotated[float, Field(allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+    reworded("must be a point [x, y] of two numbers of metres"),
+]
+"""``[x, y]`` [m]."""
+Size = Annotated[
+    _Positive | Annotated[list[_Positive], Field(min_length=2, max_length=2)],
+    reworded("must be a positive number of metres or [size_x, size_y]"),
+]
+"""A tote's side [m] (a square) or ``[size_x, size_y]`` [m]."""
+Height = number("metres", gt=0) | None
+"""[m] None: the kind's default height."""
+
+
+class _EventFields(Section):
+    at: number("seconds", ge=0)
+
+
+class MoveFields(_EventFields):
+    """``{at, move: id, x, y, yaw}``."""
+
+    move: text("an object id")
+    x: number("metres")
+    y: number("metres")
+    yaw: number() | None = None
+
+
+class DropFields(_EventFields):
+    """``{at, drop: id, x, y, size, yaw, height}``."""
+
+    drop: text("an object id")
+    x: number("metres")
+    y: number("metres")
+    size: Size = DEFAULT_TOTE_M
+    yaw: number() = 0.0
+    height: Height = None
+
+
+class RemoveFields(_EventFields):
+    """``{at, remove: id}``."""
+
+    remove: text("an object id")
+
+
+class PersonFields(_EventFields):
+    """``{at, person: id, path, speed, radius, height}``."""
+
+    person: text("an object id")
+    path: list[PointField]
+    speed: number("metres per second", ge=0.1, le=10.0) = PERSON_SPEED
+    radius: number("metres", ge=0.05, le=2.0) = PERSON_RADIUS
+    height: Height = None
+
+
+class BreakdownFields(_EventFields):
+    """``{at, breakdown: unit id, duration}``; duration None: to the end of the run."""
+
+    breakdown: text("a unit id")
+    duration: number("seconds", gt=0) | None = None
+
+
+def _kind(item: Any) -> str | None:
+    """The tag of the one kind key in ``item`` (None: not exactly one)."""
+    kinds = [k for k in EVENT_KINDS if k in item] if isinstance(item, dict) else []
+    return variant_tag(kinds[0]) if len(kinds) == 1 else None
+
+
+EventFields = Annotated[
+    variant(MoveFields, "move")
+    | variant(DropFields, "drop")
+    | variant(RemoveFields, "remove")
+    | variant(PersonFields, "person")
+    | variant(BreakdownFields, "breakdown"),
+    Discriminator(
+        _kind,
+        custom_error_type="event_kind",
+        custom_error_message="must be a mapping with at and exactly one of "
+        + ", ".join(EVENT_KINDS),
+    ),
+]
+"""One event of the file: its kind is told by the one kind key it holds."""
 
 
 def parse_events(
     doc: Document,
     path: FieldPath,
-    value: Any,
+    items: list[Any] | None,
     *,
     layout: Layout,
     unit_ids: Sequence[str],
     duration: float,
 ) -> tuple[Event, ...]:
-    """The events of list ``value`` at ``path``, sorted by time (ties in file order),
-    checked as the module docstring says; ScenarioError names the bad field."""
-    if value is None:
-        return ()
+    """The validated ``events`` at ``path``, sorted by time (ties in file order), checked
+    as the module docstring says; ScenarioError names the bad field."""
     parsed = [
-        (_parse_one(doc, where, item, duration), where)
-        for where, item in check_list(doc, path, value)
+        (_event(doc, (*path, i), item, duration), (*path, i)) for i, item in enumerate(items or ())
     ]
     parsed.sort(key=lambda pair: pair[0].at)  # stable: ties keep file order
     _check_ids(doc, parsed, layout, tuple(unit_ids))
     return tuple(event for event, _ in parsed)
 
 
-def _parse_one(doc: Document, where: FieldPath, item: Any, duration: float) -> Event:
-    """One event mapping, its kind told by the one kind key it holds."""
-    if not isinstance(item, dict):
-        raise doc.error(where, "must be a mapping with at and one of " + ", ".join(EVENT_KINDS))
-    kinds = [k for k in EVENT_KINDS if k in item]
-    if len(kinds) != 1:
-        raise doc.error(where, f"needs exactly one of {', '.join(EVENT_KINDS)}", kinds or item)
-    kind = kinds[0]
-    f = Fields(doc, where, item, ("at", kind, *_KEYS[kind]), ("at", *_REQUIRED.get(kind, ())))
-    at = f.number("at", unit="seconds", low=0)
-    if at > duration:
-        raise doc.error(f.at("at"), f"must be at most the duration ({duration:g} s)", at)
-    name = f.text(kind, what="an object id" if kind != "breakdown" else "a unit id")
-    if kind == "move":
-        yaw = f.number("yaw", None)
-        return MoveEvent(at, name, f.number("x", unit="metres"), f.number("y", unit="metres"), yaw)
-    if kind == "drop":
-        size_x, size_y = _size(doc, f)
-        height = f.number("height", None, unit="metres", low=0, low_open=True)
-        x, y = f.number("x", unit="metres"), f.number("y", unit="metres")
-        return DropEvent(at, name, x, y, size_x, size_y, f.number("yaw", 0.0), height)
-    if kind == "remove":
-        return RemoveEvent(at, name)
-    if kind == "person":
-        points = tuple(check_point(doc, p, v) for p, v in f.items("path"))
+def _event(doc: Document, where: FieldPath, f: Any, duration: float) -> Event:
+    """One validated event as its Event."""
+    if f.at > duration:
+        raise doc.error((*where, "at"), f"must be at most the duration ({duration:g} s)", f.at)
+    if isinstance(f, MoveFields):
+        return MoveEvent(f.at, f.move, f.x, f.y, f.yaw)
+    if isinstance(f, DropFields):
+        size_x, size_y = (f.size, f.size) if isinstance(f.size, float) else f.size
+        return DropEvent(f.at, f.drop, f.x, f.y, size_x, size_y, f.yaw, f.height)
+    if isinstance(f, RemoveFields):
+        return RemoveEvent(f.at, f.remove)
+    if isinstance(f, PersonFields):
+        points = tuple((p[0], p[1]) for p in f.path)
         if len(points) < 2:
-            raise doc.error(f.at("path"), "must hold at least two points [x, y]", points)
-        speed = f.number("speed", PERSON_SPEED, unit="metres per second", **PERSON_SPEED_BOUNDS)
-        radius = f.number("radius", PERSON_RADIUS, unit="metres", **PERSON_RADIUS_BOUNDS)
-        height = f.number("height", None, unit="metres", low=0, low_open=True)
-        event = PersonEvent(at, name, points, speed, radius, height)
+            raise doc.error((*where, "path"), "must hold at least two points [x, y]", points)
+        event = PersonEvent(f.at, f.person, points, f.speed, f.radius, f.height)
         if not event.length > 0:
-            raise doc.error(f.at("path"), "must have a positive length", points)
+            raise doc.error((*where, "path"), "must have a positive length", points)
         return event
-    length = f.get("duration")
-    if length is not None:
-        length = f.number("duration", unit="seconds", low=0, low_open=True)
-    return BreakdownEvent(at, name, length)
-
-
-def _size(doc: Document, f: Fields) -> Point:
-    """A drop's ``size`` [m]: a square's side or ``[size_x, size_y]``."""
-    value = f.get("size", MISSING)
-    if value is MISSING:
-        return DEFAULT_TOTE_M
-    if is_number(value):
-        side = check_number(doc, f.at("size"), value, unit="metres", low=0, low_open=True)
-        return (side, side)
-    if isinstance(value, list) and len(value) == 2 and all(map(is_number, value)):
-        if min(value) > 0:
-            return (float(value[0]), float(value[1]))
-    raise doc.error(f.at("size"), "must be a positive number of metres or [size_x, size_y]", value)
+    return BreakdownEvent(f.at, f.breakdown, f.duration)
 
 
 def _check_ids(

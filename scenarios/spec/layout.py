@@ -18,30 +18,22 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import Discriminator, Field
 
 from fleet.boxworld import BoxWorld, Warehouse
 from fleet.layout import Kind, Layout, LayoutError
+from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from planner.lane_graph import LaneGraph, one_way_loops
-from scenarios.spec.yaml_lines import Document, FieldPath, Fields, field_path
+from scenarios.spec.yaml_lines import Document, FieldPath, field_path
 
 Point = tuple[float, float]
 
 MAX_FLOOR_M = 500.0
-LAYOUT_KEYS = ("warehouse", "floor", "lanes", "obstacles", "stations", "storage", "one_way")
 ONE_WAY_LOOPS = "loops"
 """``layout.one_way: loops``: every lane one way, Kiva-style (``one_way_loops``)."""
-WAREHOUSE_FIELDS: Mapping[str, tuple[str, dict[str, Any]]] = {
-    # scenario key: (warehouse_layout argument, its bounds here)
-    "width": ("width_m", {"unit": "metres", "low": 0, "low_open": True, "high": MAX_FLOOR_M}),
-    "height": ("height_m", {"unit": "metres", "low": 0, "low_open": True, "high": MAX_FLOOR_M}),
-    "seed": ("seed", {"integer": True, "low": 0}),
-    "aisle": ("aisle_m", {"unit": "metres", "low": 1.0, "high": 50.0}),
-    "rack_depth": ("rack_depth_m", {"unit": "metres", "low": 0.2, "high": 50.0}),
-    "cross_aisle_every": ("cross_aisle_every_m", {"unit": "metres", "low": 5.0, "high": 500.0}),
-}
 LANE_NODE_ID = re.compile(r"[jw]\d+_\d+([hv]\d+)?")
 """Ids the lane graph gives its junctions and waypoints; stops may not take them."""
 
@@ -57,6 +49,63 @@ class StoragePoint:
     pod: str | None = None
 
 
+# ---------------------------------------------------------------------------- the file
+_Metres = number("metres", gt=0, le=MAX_FLOOR_M)
+
+
+class WarehouseFields(Section):
+    """``layout.warehouse``: ``warehouse_layout``'s arguments [m], bounded so that a typo
+    cannot build a 500 km warehouse (absent: its defaults)."""
+
+    width: _Metres | None = None
+    height: _Metres | None = None
+    seed: number(integer=True, ge=0) | None = None
+    aisle: number("metres", ge=1.0, le=50.0) | None = None
+    rack_depth: number("metres", ge=0.2, le=50.0) | None = None
+    cross_aisle_every: number("metres", ge=5.0, le=500.0) | None = None
+
+    def arguments(self) -> dict[str, Any]:
+        """The given values as ``warehouse_layout`` arguments (``width_m``, ...)."""
+        given = self.model_dump(exclude_none=True)
+        return {k if k == "seed" else f"{k}_m": v for k, v in given.items()}
+
+
+class StorageFields(Section):
+    """A ``layout.storage`` point: id and (x, y) [m]."""
+
+    id: text("a storage id")
+    x: number("metres")
+    y: number("metres")
+
+
+OneWayPair = Annotated[
+    list[str],
+    Field(min_length=2, max_length=2),
+    reworded("must be a pair [junction_a, junction_b] of junction ids"),
+]
+OneWay = Annotated[
+    variant(Annotated[Literal["loops"], reworded("must be 'loops' or a list of pairs")], "loops")
+    | variant(list[OneWayPair], "pairs"),
+    Discriminator(
+        lambda v: variant_tag("loops" if isinstance(v, str) else "pairs"),
+    ),
+]
+"""``loops`` or a list of ``[junction_a, junction_b]`` lanes driven only a -> b."""
+
+
+class LayoutFields(Section):
+    """The ``layout`` section. ``floor``, ``warehouse``, ``lanes``, ``obstacles`` and
+    ``stations`` are checked by ``fleet.layout.Layout.from_dict`` (docs/scenarios.md)."""
+
+    warehouse: WarehouseFields = WarehouseFields()
+    floor: Any = None
+    lanes: Any = None
+    obstacles: Any = None
+    stations: Any = None
+    storage: list[StorageFields] | None = None
+    one_way: OneWay | None = None
+
+
 def layout_warehouse(layout: Layout) -> Warehouse:
     """``layout`` as a ``Warehouse``: every obstacle's bounding box, kinds, and lanes."""
     boxes = np.array([o.shape.bounds() for o in layout.obstacles], dtype=np.float64)
@@ -70,16 +119,12 @@ def layout_warehouse(layout: Layout) -> Warehouse:
     )
 
 
-def parse_layout(doc: Document, lf: Fields) -> Layout:
+def parse_layout(doc: Document, lf: LayoutFields) -> Layout:
     """``Layout.from_dict`` of the layout section (warehouse keys renamed, bounded)."""
-    data = {k: v for k, v in lf.data.items() if k not in ("storage", "one_way")}
-    if "warehouse" in lf:
-        wf = lf.fields("warehouse", WAREHOUSE_FIELDS)
-        data["warehouse"] = {
-            name: wf.number(key, **bounds)
-            for key, (name, bounds) in WAREHOUSE_FIELDS.items()
-            if key in wf
-        }
+    given = lf.model_fields_set - {"storage", "one_way"}
+    data = {k: getattr(lf, k) for k in given}
+    if "warehouse" in given:
+        data["warehouse"] = lf.warehouse.arguments()
     try:
         layout = Layout.from_dict(data)
     except LayoutError as exc:
@@ -87,36 +132,32 @@ def parse_layout(doc: Document, lf: Fields) -> Layout:
         raise doc.error(path, str(exc)[len(exc.field) + 2 :]) from None
     for name, size in (("width", layout.width), ("height", layout.height)):
         if size > MAX_FLOOR_M:
-            raise doc.error(lf.at("floor") + (name,), f"must be at most {MAX_FLOOR_M:g} m", size)
+            raise doc.error(("layout", "floor", name), f"must be at most {MAX_FLOOR_M:g} m", size)
     for axis, lanes in (("x", layout.lane_x), ("y", layout.lane_y)):
         if any(b <= a for a, b in zip(lanes, lanes[1:], strict=False)):
-            raise doc.error(lf.at("lanes") + (axis,), "must be strictly increasing", list(lanes))
+            raise doc.error(("layout", "lanes", axis), "must be strictly increasing", list(lanes))
     return layout
 
 
 def parse_storage(
-    doc: Document, lf: Fields, layout: Layout
+    doc: Document, lf: LayoutFields, layout: Layout
 ) -> tuple[tuple[StoragePoint, ...], list[FieldPath]]:
     """The storage locations and the field path of each (module docstring)."""
-    if "storage" in lf:
-        points, paths = [], []
-        for where, item in lf.items("storage"):
-            sf = Fields(doc, where, item, ("id", "x", "y"), ("id", "x", "y"))
-            x, y = sf.number("x", unit="metres"), sf.number("y", unit="metres")
-            points.append(StoragePoint(sf.text("id", what="a storage id"), x, y))
-            paths.append(where)
+    if "storage" in lf.model_fields_set:
+        points = [StoragePoint(p.id, p.x, p.y) for p in lf.storage or ()]
+        paths: list[FieldPath] = [("layout", "storage", i) for i in range(len(points))]
         ids = [p.id for p in points]
         for i, pid in enumerate(ids):
             if pid in ids[:i]:
                 raise doc.error((*paths[i], "id"), "duplicates an earlier storage id", pid)
         return tuple(points), paths
-    raw = lf.get("obstacles") or []
+    raw = lf.obstacles or []
     points, paths = [], []
     for obstacle in layout.obstacles:
         if obstacle.kind is not Kind.POD:
             continue
         index = next(i for i, item in enumerate(raw) if item.get("id") == obstacle.id)
-        where = lf.at("obstacles") + (index,)
+        where = ("layout", "obstacles", index)
         point = lane_point(layout, obstacle.shape.x, obstacle.shape.y)
         if point is None:
             raise doc.error(where, "is a pod (a storage location) but the layout has no lanes")
@@ -154,32 +195,19 @@ def check_clear(
             )
 
 
-def parse_one_way(doc: Document, lf: Fields, layout: Layout) -> tuple[tuple[str, str], ...]:
+def parse_one_way(doc: Document, lf: LayoutFields, layout: Layout) -> tuple[tuple[str, str], ...]:
     """The ``one_way`` pairs ``[junction_a, junction_b]`` (checked by ``check_lanes``), or
     ``loops``: Kiva-style one-way highways over the whole lane grid (``one_way_loops``)."""
-    if lf.get("one_way") == ONE_WAY_LOOPS:
-        n_x, n_y = len(layout.lane_x), len(layout.lane_y)
+    if lf.one_way == ONE_WAY_LOOPS:
         try:
-            return one_way_loops(n_x, n_y)
+            return one_way_loops(len(layout.lane_x), len(layout.lane_y))
         except ValueError as exc:
-            raise doc.error(lf.at("one_way"), str(exc), ONE_WAY_LOOPS) from None
-    if isinstance(lf.get("one_way"), str):
-        raise doc.error(
-            lf.at("one_way"), f"must be {ONE_WAY_LOOPS!r} or a list of pairs", lf.get("one_way")
-        )
-    pairs = []
-    for where, item in lf.items("one_way"):
-        if not (
-            isinstance(item, list) and len(item) == 2 and all(isinstance(v, str) for v in item)
-        ):
-            raise doc.error(where, "must be a pair [junction_a, junction_b] of junction ids", item)
-        pairs.append((item[0], item[1]))
-    return tuple(pairs)
+            raise doc.error(("layout", "one_way"), str(exc), ONE_WAY_LOOPS) from None
+    return tuple((a, b) for a, b in lf.one_way or ())
 
 
 def check_lanes(
     doc: Document,
-    lf: Fields,
     layout: Layout,
     stops: Mapping[str, Point],
     stop_paths: Mapping[str, FieldPath],
@@ -190,20 +218,19 @@ def check_lanes(
         LaneGraph.from_warehouse(layout_warehouse(layout), stations=stops, one_way=one_way)
     except ValueError as exc:
         message = str(exc)
-        where: FieldPath = lf.path
+        where: FieldPath = ("layout",)
         for sid, path in stop_paths.items():
             if repr(sid) in message:
                 where = path
         for i, (a, b) in enumerate(one_way):
             lane = tuple(sorted((a, b)))
             if f"({a!r}, {b!r})" in message or f"lane {lane!r} both" in message:
-                where = lf.at("one_way") + (i,)
+                where = ("layout", "one_way", i)
         raise doc.error(where, message) from None
 
 
 def check_stops(
     doc: Document,
-    lf: Fields,
     layout: Layout,
     storage: tuple[StoragePoint, ...],
     storage_paths: list[FieldPath],
@@ -211,7 +238,9 @@ def check_stops(
     clearance: float,
 ) -> None:
     """The stops' ids, clearances and lanes (module docstring); ``clearance`` [m]."""
-    stop_paths = {s.id: lf.at("stations") + (i,) for i, s in enumerate(layout.stations)}
+    stop_paths: dict[str, FieldPath] = {
+        s.id: ("layout", "stations", i) for i, s in enumerate(layout.stations)
+    }
     for point, where in zip(storage, storage_paths, strict=True):
         if point.id in stop_paths:
             raise doc.error(where, "has the id of a station", point.id)
@@ -221,4 +250,4 @@ def check_stops(
         if LANE_NODE_ID.fullmatch(sid):
             raise doc.error(where, "is a lane graph node id (j<i>_<j>, w...); pick another", sid)
         check_clear(doc, where, layout, stops[sid], clearance)
-    check_lanes(doc, lf, layout, stops, stop_paths, one_way)
+    check_lanes(doc, layout, stops, stop_paths, one_way)

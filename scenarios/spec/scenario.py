@@ -44,12 +44,14 @@ from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import Pose2D
 from mapserver.core.sensor_model import Policy
 from mapserver.service.settings import Settings
+from mapserver.service.validation import Section, domain_section, number, text
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
 from scenarios.spec.events import (
     BreakdownEvent,
     DropEvent,
     Event,
+    EventFields,
     MoveEvent,
     PersonEvent,
     RemoveEvent,
@@ -57,7 +59,7 @@ from scenarios.spec.events import (
     parse_events,
 )
 from scenarios.spec.layout import (
-    LAYOUT_KEYS,
+    LayoutFields,
     StoragePoint,
     check_clear,
     check_stops,
@@ -66,9 +68,9 @@ from scenarios.spec.layout import (
     parse_one_way,
     parse_storage,
 )
-from scenarios.spec.server import MAP_SERVER_KEYS, MapServerSpec, parse_map_server
-from scenarios.spec.tasks import Task, TaskSpec, parse_tasks, task_stream
-from scenarios.spec.yaml_lines import Document, Fields, ScenarioError, build_dataclass, parse_yaml
+from scenarios.spec.server import MapServerFields, MapServerSpec, parse_map_server
+from scenarios.spec.tasks import Task, TasksFields, TaskSpec, parse_tasks, task_stream
+from scenarios.spec.yaml_lines import Document, ScenarioError, parse_yaml
 
 __all__ = [
     "BreakdownEvent",
@@ -97,22 +99,6 @@ DEFAULT_DT_S = 0.1
 MAX_DURATION_S = 86_400.0
 MIN_DT_S = 0.001
 MAX_UNITS = 500
-
-TOP_KEYS = (
-    "name",
-    "description",
-    "duration",
-    "dt",
-    "seed",
-    "layout",
-    "units",
-    "tasks",
-    "map_server",
-    "events",
-    "recovery",
-)
-UNIT_KEYS = ("count", "starts", "drive", "lidar", "pose_noise")
-TASK_KEYS = ("count", "rate_per_unit", "dwell")
 
 
 # ---------------------------------------------------------------------------- model
@@ -243,6 +229,51 @@ class Scenario:
         return replace(self, seed=seed)
 
 
+# ---------------------------------------------------------------------------- the file
+DriveFields = domain_section(DriveLimits, "DriveFields", "``units.drive``: ``DriveLimits``.")
+LidarFields = domain_section(LidarConfig, "LidarFields", "``units.lidar``: ``LidarConfig``.")
+PoseNoiseFields = domain_section(PoseNoise, "PoseNoiseFields", "``units.pose_noise``.")
+RecoveryFields = domain_section(RecoveryConfig, "RecoveryFields", "``recovery``.")
+
+
+class StartFields(Section):
+    """A unit's start pose: (x, y) [m], yaw [rad]."""
+
+    x: number("metres")
+    y: number("metres")
+    yaw: number("radians") = 0.0
+
+
+class UnitsFields(Section):
+    """The ``units`` section: ``count`` units placed at lane junctions, or ``starts``."""
+
+    count: number(integer=True, ge=1, le=MAX_UNITS) | None = None
+    starts: list[StartFields] | None = None
+    drive: DriveFields = DriveFields()
+    lidar: LidarFields = LidarFields()
+    pose_noise: PoseNoiseFields = PoseNoiseFields()
+
+
+class ScenarioFile(Section):
+    """A scenario file as written (docs/scenarios.md): types and bounds of each field;
+    ``load_scenario`` checks the rest (ids, the floor, stops, lanes)."""
+
+    name: text("a scenario name") | None = None
+    description: str | None = None
+    duration: number("seconds", gt=0, le=MAX_DURATION_S)
+    dt: number("seconds", ge=MIN_DT_S) = DEFAULT_DT_S
+    seed: number(integer=True, ge=0) = 0
+    layout: LayoutFields
+    units: UnitsFields
+    tasks: TasksFields = TasksFields()
+    map_server: MapServerFields = MapServerFields()
+    events: list[EventFields] | None = None
+    recovery: RecoveryFields = RecoveryFields()
+
+
+TOP_KEYS = tuple(ScenarioFile.model_fields)
+
+
 # ---------------------------------------------------------------------------- loading
 def load_scenario(path: str | Path, overrides: Mapping[str, Any] | None = None) -> Scenario:
     """The scenario in the YAML file ``path``; ``overrides`` set dotted keys first
@@ -273,61 +304,48 @@ def parse_scenario(
 def _scenario(doc: Document, default_name: str) -> Scenario:
     if not isinstance(doc.data, dict):
         raise doc.error((), "must be a mapping of scenario fields", doc.data)
-    top = Fields(doc, (), doc.data, TOP_KEYS, required=("duration", "layout", "units"))
-    name = top.text("name", default_name, what="a scenario name")
-    description = top.get("description") or ""
-    if not isinstance(description, str):
-        raise doc.error(top.at("description"), "must be a string", description)
-    duration = top.number("duration", unit="seconds", low=0, low_open=True, high=MAX_DURATION_S)
-    dt = top.number("dt", DEFAULT_DT_S, unit="seconds", low=MIN_DT_S)
-    if dt > duration:
-        raise doc.error(top.at("dt"), f"must be at most the duration ({duration:g} s)", dt)
-    seed = top.integer("seed", 0, low=0)
-
-    uf = top.fields("units", UNIT_KEYS)
-    drive = build_dataclass(doc, uf.at("drive"), uf.get("drive"), DriveLimits)
-    lidar = build_dataclass(doc, uf.at("lidar"), uf.get("lidar"), LidarConfig)
-    noise = build_dataclass(doc, uf.at("pose_noise"), uf.get("pose_noise"), PoseNoise)
-    if dt > lidar.period * (1 + 1e-9):
+    top = doc.validate(ScenarioFile)
+    if top.dt > top.duration:
+        raise doc.error(("dt",), f"must be at most the duration ({top.duration:g} s)", top.dt)
+    drive, lidar = top.units.drive.build(), top.units.lidar.build()
+    if top.dt > lidar.period * (1 + 1e-9):
         raise doc.error(
-            top.at("dt"),
+            ("dt",),
             f"must be at most one LiDAR period (1 / units.lidar.rate_hz = {lidar.period:g} s)",
-            dt,
+            top.dt,
         )
-
-    lf = top.fields("layout", LAYOUT_KEYS)
-    layout = parse_layout(doc, lf)
-    map_server = parse_map_server(doc, top.fields("map_server", MAP_SERVER_KEYS), layout, drive)
+    layout = parse_layout(doc, top.layout)
+    map_server = parse_map_server(doc, top.map_server, layout, drive)
     clearance = (
         max(drive.radius, map_server.inflation.inscribed_radius) + map_server.grid.resolution
     )
-    storage, storage_paths = parse_storage(doc, lf, layout)
-    one_way = parse_one_way(doc, lf, layout)
-    check_stops(doc, lf, layout, storage, storage_paths, one_way, clearance)
+    storage, storage_paths = parse_storage(doc, top.layout, layout)
+    one_way = parse_one_way(doc, top.layout, layout)
+    check_stops(doc, layout, storage, storage_paths, one_way, clearance)
 
-    units = _units(doc, uf, layout, drive, lidar, noise, clearance)
-    tasks = parse_tasks(top.fields("tasks", TASK_KEYS), units.count, duration)
+    starts = _starts(doc, top.units, layout, drive, clearance)
+    units = UnitsSpec(starts, drive, lidar, top.units.pose_noise.build(), top.units.starts is None)
+    tasks = parse_tasks(doc, top.tasks, units.count, top.duration)
     if tasks.enabled and not (storage and layout.stations):
         raise doc.error(
-            top.at("tasks"),
+            ("tasks",),
             "trips need at least one storage location (layout.storage, or pods) and one "
             "station (layout.stations)",
         )
-    recovery = build_dataclass(doc, top.at("recovery"), top.get("recovery"), RecoveryConfig)
     events = parse_events(
         doc,
-        top.at("events"),
-        top.get("events"),
+        ("events",),
+        top.events,
         layout=layout,
         unit_ids=units.ids,
-        duration=duration,
+        duration=top.duration,
     )
     return Scenario(
-        name=name,
-        description=description.strip(),
-        duration=duration,
-        dt=dt,
-        seed=seed,
+        name=top.name or default_name,
+        description=(top.description or "").strip(),
+        duration=top.duration,
+        dt=top.dt,
+        seed=top.seed,
         layout=layout,
         units=units,
         map_server=map_server,
@@ -335,47 +353,40 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
         one_way=one_way,
         tasks=tasks,
         events=events,
-        recovery=recovery,
+        recovery=top.recovery.build(),
         source=doc.source,
     )
 
 
 # ---------------------------------------------------------------------------- units
-def _units(
-    doc: Document,
-    uf: Fields,
-    layout: Layout,
-    drive: DriveLimits,
-    lidar: LidarConfig,
-    noise: PoseNoise,
-    clearance: float,
-) -> UnitsSpec:
-    """The ``units`` section: given starts (checked clear of obstacles and of each other,
-    ``clearance`` [m]) or placed ones (``_place``)."""
-    if "count" not in uf and "starts" not in uf:
-        raise doc.error(uf.at("count"), "is required (or give starts)")
-    count = uf.integer("count", None, low=1, high=MAX_UNITS)
-    if "starts" not in uf:
-        return UnitsSpec(_place(doc, uf, layout, count, clearance), drive, lidar, noise, True)
-    starts = []
-    for where, item in uf.items("starts"):
-        sf = Fields(doc, where, item, ("x", "y", "yaw"), ("x", "y"))
-        x, y = sf.number("x", unit="metres"), sf.number("y", unit="metres")
-        starts.append(Pose2D(x, y, sf.number("yaw", 0.0, unit="radians")))
-        check_clear(doc, where, layout, (x, y), clearance)
-        for k, other in enumerate(starts[:-1]):
-            if math.hypot(other.x - x, other.y - y) <= 2 * drive.radius:
-                raise doc.error(where, f"overlaps the start of u{k + 1}", (x, y))
-    if not starts or len(starts) > MAX_UNITS:
-        raise doc.error(uf.at("starts"), f"must hold 1 to {MAX_UNITS} poses", len(starts))
-    if count is not None and count != len(starts):
-        raise doc.error(uf.at("starts"), f"must hold units.count = {count} poses", len(starts))
-    return UnitsSpec(tuple(starts), drive, lidar, noise, False)
-
-
-def _place(
-    doc: Document, uf: Fields, layout: Layout, count: int, clearance: float
+def _starts(
+    doc: Document, uf: UnitsFields, layout: Layout, drive: DriveLimits, clearance: float
 ) -> tuple[Pose2D, ...]:
+    """The units' starts: given (checked clear of obstacles and of each other,
+    ``clearance`` [m]) or placed (``_place``)."""
+    where = ("units",)
+    if uf.starts is None:
+        if uf.count is None:
+            raise doc.error((*where, "count"), "is required (or give starts)")
+        return _place(doc, layout, uf.count, clearance)
+    starts: list[Pose2D] = []
+    for i, item in enumerate(uf.starts):
+        at = (*where, "starts", i)
+        starts.append(Pose2D(item.x, item.y, item.yaw))
+        check_clear(doc, at, layout, (item.x, item.y), clearance)
+        for k, other in enumerate(starts[:-1]):
+            if math.hypot(other.x - item.x, other.y - item.y) <= 2 * drive.radius:
+                raise doc.error(at, f"overlaps the start of u{k + 1}", (item.x, item.y))
+    if not starts or len(starts) > MAX_UNITS:
+        raise doc.error((*where, "starts"), f"must hold 1 to {MAX_UNITS} poses", len(starts))
+    if uf.count is not None and uf.count != len(starts):
+        raise doc.error(
+            (*where, "starts"), f"must hold units.count = {uf.count} poses", len(starts)
+        )
+    return tuple(starts)
+
+
+def _place(doc: Document, layout: Layout, count: int, clearance: float) -> tuple[Pose2D, ...]:
     """Starts at free lane junctions, spread evenly (module docstring)."""
     junctions = np.array([(x, y) for y in layout.lane_y for x in layout.lane_x]).reshape(-1, 2)
     free = np.ones(len(junctions), dtype=bool)
@@ -384,7 +395,7 @@ def _place(
     spots = junctions[free]
     if len(spots) < count:
         raise doc.error(
-            uf.at("count"),
+            ("units", "count"),
             f"needs a free lane junction per unit and the layout has {len(spots)}; give "
             "units.starts",
             count,

@@ -15,11 +15,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any, Literal
 
 from fleet.layout import Layout
 from fleet.unit import DriveLimits
-from mapserver.core.sensor_model import Policy
+from mapserver.core.inflation import InflationParams
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service.settings import (
     DecaySettings,
     GridSettings,
@@ -29,24 +30,38 @@ from mapserver.service.settings import (
     SettingsError,
     load_settings,
 )
-from scenarios.spec.yaml_lines import Document, Fields, field_path
+from mapserver.service.validation import Section, domain_section, number, reworded
+from scenarios.spec.yaml_lines import Document, field_path
 
 DEFAULT_RESOLUTION_M = 0.1
 MAX_GRID_CELLS = 25_000_000
 """Largest map grid a scenario may ask for (the server keeps ~20 bytes per cell)."""
-MAP_SERVER_KEYS = (
-    "policy",
-    "resolution",
-    "sensor_model",
-    "decay",
-    "inflation",
-    "max_clearing_range",
-)
 MAP_SERVER_SECTIONS = {
     "sensor_model": SensorModelSettings,
     "decay": DecaySettings,
     "inflation": InflationSettings,
 }
+PolicyName = Annotated[
+    Literal["decay", "binary", "sticky"],
+    reworded("must be one of " + ", ".join(p.value for p in Policy)),
+]
+"""A map policy's name (``Policy``)."""
+_TYPES_ONLY = "Types only: the values are checked by the server's own Settings."
+SensorModelFields = domain_section(SensorModel, "SensorModelFields", _TYPES_ONLY, check=False)
+DecayFields = domain_section(DecayParams, "DecayFields", _TYPES_ONLY, check=False)
+InflationFields = domain_section(InflationParams, "InflationFields", _TYPES_ONLY, check=False)
+
+
+class MapServerFields(Section):
+    """The ``map_server`` section (module docstring); the sections' values are checked
+    by ``load_settings`` (so are only the given ones passed on)."""
+
+    policy: PolicyName = Policy.DECAY.value
+    resolution: number("metres", ge=0.01, le=1.0) = DEFAULT_RESOLUTION_M
+    sensor_model: SensorModelFields = SensorModelFields()
+    decay: DecayFields = DecayFields()
+    inflation: InflationFields = InflationFields()
+    max_clearing_range: number("metres") | None = None
 
 
 @dataclass(frozen=True)
@@ -84,37 +99,39 @@ class MapServerSpec:
         return load_settings(None, {**self.overrides(), **(extra or {})})
 
 
-def parse_map_server(doc: Document, f: Fields, layout: Layout, drive: DriveLimits) -> MapServerSpec:
+def parse_map_server(
+    doc: Document, f: MapServerFields, layout: Layout, drive: DriveLimits
+) -> MapServerSpec:
     """The map server section, checked by building the server's own Settings."""
-    resolution = f.number("resolution", DEFAULT_RESOLUTION_M, unit="metres", low=0.01, high=1.0)
-    width = math.ceil(layout.width / resolution - 1e-9)
-    height = math.ceil(layout.height / resolution - 1e-9)
+    where = ("map_server",)
+    width = math.ceil(layout.width / f.resolution - 1e-9)
+    height = math.ceil(layout.height / f.resolution - 1e-9)
     if width * height > MAX_GRID_CELLS:
         raise doc.error(
-            f.at("resolution"),
+            (*where, "resolution"),
             f"gives a {width} x {height} grid, more than {MAX_GRID_CELLS} cells",
-            resolution,
+            f.resolution,
         )
     overrides: dict[str, Any] = {
-        "policy": f.get("policy", Policy.DECAY.value),
-        "grid": {"width": width, "height": height, "resolution": resolution},
-        "max_clearing_range": f.get("max_clearing_range"),
+        "policy": f.policy,
+        "grid": {"width": width, "height": height, "resolution": f.resolution},
+        "max_clearing_range": f.max_clearing_range,
     }
     for name, section in MAP_SERVER_SECTIONS.items():
         values = section().model_dump()
         if name == "inflation":  # Nav2 derives it from the footprint: so do we
             values["inscribed_radius"] = drive.radius
-        values.update(f.fields(name, section.model_fields).data)
+        values.update(getattr(f, name).model_dump(exclude_unset=True))
         overrides[name] = values
     try:
         settings = load_settings(None, overrides)
     except SettingsError as exc:
         name, detail = exc.fields[0] if exc.fields else ("", exc.problems[0])
         path = field_path(name)
-        if not path or path[0] not in MAP_SERVER_KEYS:
-            where = f.at("resolution") if path[:1] == ("grid",) else f.path
-            raise doc.error(where, exc.problems[0]) from None
-        raise doc.error((*f.path, *path), detail) from None
+        if not path or path[0] not in MapServerFields.model_fields:
+            place = (*where, "resolution") if path[:1] == ("grid",) else where
+            raise doc.error(place, exc.problems[0]) from None
+        raise doc.error((*where, *path), detail) from None
     return MapServerSpec(
         policy=settings.policy,
         grid=settings.grid,

@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scenarios.spec.yaml_lines import Fields
+from mapserver.service.validation import Section, number
+from scenarios.spec.yaml_lines import Document
 
 if TYPE_CHECKING:
     from scenarios.spec.scenario import Scenario
@@ -78,21 +79,24 @@ class Task:
     unit: str | None = None
 
 
-def parse_tasks(f: Fields, units: int, duration: float) -> TaskSpec:
-    """The ``tasks`` section read by ``f`` for ``units`` units over ``duration`` [s]."""
-    if "count" in f and "rate_per_unit" in f:
-        raise f.doc.error(f.at("rate_per_unit"), "give count or rate_per_unit, not both")
-    count = f.integer("count", None, low=0, high=MAX_TASKS)
-    rate = f.number("rate_per_unit", None, unit="trips per unit per second", low=0)
+class TasksFields(Section):
+    """The ``tasks`` section of the file (``TaskSpec``)."""
+
+    count: number(integer=True, ge=0, le=MAX_TASKS) | None = None
+    rate_per_unit: number("trips per unit per second", ge=0) | None = None
+    dwell: number("seconds", ge=0) = DEFAULT_DWELL_S
+
+
+def parse_tasks(doc: Document, f: TasksFields, units: int, duration: float) -> TaskSpec:
+    """The ``tasks`` section for ``units`` units over ``duration`` [s]."""
+    where = ("tasks", "rate_per_unit")
+    if f.count is not None and f.rate_per_unit is not None:
+        raise doc.error(where, "give count or rate_per_unit, not both")
+    rate = f.rate_per_unit
     if rate is not None and rate * units * duration > MAX_TASKS:
         expected = rate * units * duration
-        raise f.doc.error(
-            f.at("rate_per_unit"),
-            f"asks for about {expected:.0f} trips, more than {MAX_TASKS}",
-            rate,
-        )
-    dwell = f.number("dwell", DEFAULT_DWELL_S, unit="seconds", low=0)
-    return TaskSpec(count, rate, dwell)
+        raise doc.error(where, f"asks for about {expected:.0f} trips, more than {MAX_TASKS}", rate)
+    return TaskSpec(f.count, rate, f.dwell)
 
 
 def task_rng(seed: int) -> np.random.Generator:

@@ -23,29 +23,56 @@ import itertools
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import Discriminator, Field
 
 from mapserver.core.sensor_model import Policy
+from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from scenarios.spec.scenario import load_scenario
-from scenarios.spec.yaml_lines import (
-    Document,
-    Fields,
-    ScenarioError,
-    check_text,
-    is_number,
-    parse_yaml,
-)
+from scenarios.spec.server import PolicyName
+from scenarios.spec.yaml_lines import Document, ScenarioError, parse_yaml
 
 __all__ = ["ScenarioError", "Sweep", "SweepRun", "expand", "load_sweep", "parse_sweep"]
 
-SWEEP_KEYS = ("scenarios", "policies", "seeds", "parameters", "duration")
-SEED_RANGE_KEYS = ("count", "start")
 DEFAULT_POLICIES = tuple(p.value for p in Policy)
 MAX_RUNS = 100_000
 _PARAM_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9._+-]")
 
 Scalar = bool | int | float | str
+
+
+# ---------------------------------------------------------------------------- the file
+class SeedRange(Section):
+    """``seeds: {count, start}``: seeds start, start + 1, ..., count of them."""
+
+    count: number(integer=True, ge=1, le=MAX_RUNS)
+    start: number(integer=True, ge=0) = 0
+
+
+Seeds = Annotated[
+    variant(SeedRange, "range") | variant(list[number(integer=True, ge=0)], "list"),
+    Discriminator(
+        lambda v: variant_tag({dict: "range", list: "list"}.get(type(v))),
+        custom_error_type="seeds",
+        custom_error_message="must be a list of integers or {count, start}",
+    ),
+]
+ParameterValue = Annotated[
+    bool | int | Annotated[float, Field(allow_inf_nan=False)] | str,
+    reworded("must be a number, string or boolean"),
+]
+
+
+class SweepFile(Section):
+    """A sweep file as written (module docstring); ``parse_sweep`` checks the rest."""
+
+    scenarios: list[text("a scenario file path")]
+    policies: list[PolicyName] | None = None
+    seeds: Seeds | None = None
+    parameters: dict[str, list[ParameterValue]] | None = None
+    duration: number("seconds", gt=0) | None = None
 
 
 @dataclass(frozen=True)
@@ -138,16 +165,18 @@ def load_sweep(path: str | Path, check_scenarios: bool = True) -> Sweep:
 def parse_sweep(text: str, source: str = "<sweep>", base: Path | None = None) -> Sweep:
     """The sweep in YAML ``text``; scenario paths are resolved against ``base`` (default:
     the current folder). ``source`` names the file in errors."""
-    doc = parse_yaml(text, source)
+    doc = parse_yaml(text, source, root="sweep")
     if not isinstance(doc.data, dict):
         raise doc.error((), "must be a mapping of sweep fields", doc.data)
-    top = Fields(doc, (), doc.data, SWEEP_KEYS, required=("scenarios",))
-    scenarios = _scenarios(doc, top, base or Path.cwd())
-    policies = _policies(doc, top)
-    seeds = _seeds(doc, top)
-    parameters = _parameters(doc, top)
-    duration = top.number("duration", None, unit="seconds", low=0, low_open=True)
-    sweep = Sweep(scenarios, policies, seeds, parameters, duration, source)
+    top = doc.validate(SweepFile)
+    scenarios = _scenarios(doc, top.scenarios, base or Path.cwd())
+    policies = _unique(doc, ("policies",), top.policies, DEFAULT_POLICIES, "policy")
+    if isinstance(top.seeds, SeedRange):
+        seeds = tuple(range(top.seeds.start, top.seeds.start + top.seeds.count))
+    else:
+        seeds = _unique(doc, ("seeds",), top.seeds, (0,), "seed")
+    parameters = _parameters(doc, top.parameters or {})
+    sweep = Sweep(scenarios, policies, seeds, parameters, top.duration, source)
     runs = len(scenarios) * len(policies) * len(seeds) * len(sweep.combinations())
     if runs > MAX_RUNS:
         raise doc.error((), f"expands to {runs} runs, more than {MAX_RUNS}")
@@ -174,83 +203,51 @@ def check_sweep(sweep: Sweep) -> None:
 
 
 # ---------------------------------------------------------------------------- fields
-def _scenarios(doc: Document, top: Fields, base: Path) -> tuple[Path, ...]:
-    items = top.items("scenarios")
-    if not items:
-        raise doc.error(top.at("scenarios"), "must list at least one scenario file")
+def _scenarios(doc: Document, names: list[str], base: Path) -> tuple[Path, ...]:
+    if not names:
+        raise doc.error(("scenarios",), "must list at least one scenario file")
     paths: list[Path] = []
     stems: dict[str, int] = {}
-    for where, item in items:
-        name = check_text(doc, where, item, "a scenario file path")
+    for i, name in enumerate(names):
+        where = ("scenarios", i)
         path = (base / name).resolve()
         if not path.is_file():
-            raise doc.error(where, f"is not a file (looked for {path})", item)
+            raise doc.error(where, f"is not a file (looked for {path})", name)
         if path.stem in stems:
-            raise doc.error(where, f"has the same file name as scenarios[{stems[path.stem]}]", item)
+            raise doc.error(where, f"has the same file name as scenarios[{stems[path.stem]}]", name)
         stems[path.stem] = len(paths)
         paths.append(path)
     return tuple(paths)
 
 
-def _policies(doc: Document, top: Fields) -> tuple[str, ...]:
-    if "policies" not in top:
-        return DEFAULT_POLICIES
-    out: list[str] = []
-    for where, item in top.items("policies"):
-        try:
-            policy = Policy.parse(item).value
-        except (ValueError, TypeError, AttributeError):
-            raise doc.error(where, f"must be one of {', '.join(DEFAULT_POLICIES)}", item) from None
-        if policy in out:
-            raise doc.error(where, "is listed twice", item)
-        out.append(policy)
-    if not out:
-        raise doc.error(top.at("policies"), "must list at least one policy")
-    return tuple(out)
+def _unique(
+    doc: Document, where: tuple[str], items: list[Any] | None, default: tuple[Any, ...], what: str
+) -> tuple[Any, ...]:
+    """``items`` (``default`` when not given): at least one, none twice."""
+    if items is None:
+        return default
+    for i, item in enumerate(items):
+        if item in items[:i]:
+            raise doc.error((*where, i), "is listed twice", item)
+    if not items:
+        raise doc.error(where, f"must list at least one {what}")
+    return tuple(items)
 
 
-def _seeds(doc: Document, top: Fields) -> tuple[int, ...]:
-    value = top.get("seeds")
-    if value is None:
-        return (0,)
-    if isinstance(value, dict):
-        sf = top.fields("seeds", SEED_RANGE_KEYS, required=("count",))
-        count = sf.integer("count", low=1, high=MAX_RUNS)
-        start = sf.integer("start", 0, low=0)
-        return tuple(range(start, start + count))
-    if not isinstance(value, list):
-        raise doc.error(top.at("seeds"), "must be a list of integers or {count, start}", value)
-    out: list[int] = []
-    for where, item in top.items("seeds"):
-        if isinstance(item, bool) or not isinstance(item, int) or item < 0:
-            raise doc.error(where, "must be an integer >= 0", item)
-        if item in out:
-            raise doc.error(where, "is listed twice", item)
-        out.append(item)
-    if not out:
-        raise doc.error(top.at("seeds"), "must list at least one seed")
-    return tuple(out)
-
-
-def _parameters(doc: Document, top: Fields) -> tuple[tuple[str, tuple[Scalar, ...]], ...]:
-    value = top.get("parameters")
-    if value is None:
-        return ()
-    if not isinstance(value, dict):
-        raise doc.error(top.at("parameters"), "must be a mapping of dotted key: [values]", value)
+def _parameters(
+    doc: Document, grid: dict[str, list[Scalar]]
+) -> tuple[tuple[str, tuple[Scalar, ...]], ...]:
     out: list[tuple[str, tuple[Scalar, ...]]] = []
-    for key, values in value.items():
-        where = top.at("parameters") + (str(key),)
-        if not isinstance(key, str) or not _PARAM_KEY.match(key):
+    for key, values in grid.items():
+        where = ("parameters", key)
+        if not _PARAM_KEY.match(key):
             raise doc.error(where, "must be a dotted scenario key (map_server.policy)", key)
         if key in ("duration", "seed", "map_server.policy"):
             raise doc.error(where, "is set by the sweep's own field; use it instead", key)
-        if not isinstance(values, list) or not values:
+        if not values:
             raise doc.error(where, "must be a non-empty list of values", values)
         seen: list[Scalar] = []
         for i, item in enumerate(values):
-            if not (is_number(item) or isinstance(item, str | bool)):
-                raise doc.error((*where, i), "must be a number, string or boolean", item)
             if any(type(item) is type(s) and item == s for s in seen):
                 raise doc.error((*where, i), "is listed twice", item)
             seen.append(item)

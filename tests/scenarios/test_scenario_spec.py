@@ -352,6 +352,42 @@ def test_errors_name_the_file_the_line_and_the_field(tmp_path, old, new, field, 
     assert reason in str(exc)
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        (
+            "duration: 30.0",
+            'duration: "30"',
+            "duration: must be a number of seconds in (0, 86400], got '30'",
+        ),
+        ("seed: 0", "seed: true", "seed: must be an integer >= 0, got True"),
+        ("{beams: 90}", "{beams: 9.5}", "units.lidar.beams: must be an integer, got 9.5"),
+        (
+            "p_hit: 0.75",
+            "p_hit: '0.75'",
+            "map_server.sensor_model.p_hit: must be a number, got '0.75'",
+        ),
+        (
+            "policy: decay",
+            "policy: careful",
+            "map_server.policy: must be one of decay, binary, sticky, got 'careful'",
+        ),
+        ("  count: 2", "  cont: 2", "units.cont: is not a field of units; did you mean 'count'?"),
+        (
+            "{at: 5.0, remove: tote-1}",
+            "{at: 5.0, remove: tote-1, move: tote-1}",
+            "events[1]: must be a mapping with at and exactly one of move, drop, remove, person, "
+            "breakdown, got {'at': 5.0, 'remove': 'tote-1', 'move': 'tote-1'}",
+        ),
+    ],
+)  # fmt: skip
+def test_types_are_strict_and_errors_read_exactly_so(tmp_path, old, new, expected):
+    text = BASE.replace(old, new, 1)
+    with pytest.raises(ScenarioError) as err:
+        load_text(text, tmp_path, "bad.yaml")
+    assert str(err.value) == f"{tmp_path / 'bad.yaml'}:{line_of(text, new[:8])}: {expected}"
+
+
 def test_the_briefs_example_error_reads_exactly_so(tmp_path):
     text = BASE.replace("{at: 5.0, remove", "{at: soon, remove")
     with pytest.raises(ScenarioError) as err:

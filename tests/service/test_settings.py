@@ -223,6 +223,14 @@ def test_every_problem_is_reported_at_once(tmp_path: Path) -> None:
     assert any("got 'eighty'" in line for line in lines)
 
 
+def test_unknown_names_get_the_closest_field_and_types_read_as_one_sentence() -> None:
+    assert sorted(problems(prot=1, sensor_model={"p_ht": 0.8}, grid={"width": "a"})) == [
+        "grid.width: must be an integer, got 'a'",
+        "prot: is not a field of settings; did you mean 'port'?",
+        "sensor_model.p_ht: is not a field of sensor_model; did you mean 'p_hit'?",
+    ]
+
+
 def test_bad_environment_value_names_the_field(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("FLEETMAP_SENSOR_MODEL__P_MISS", "0.6")
     assert problems() == ["sensor_model.p_miss: must be less than the prior (0.5), got 0.6"]
