@@ -34,9 +34,9 @@ class FieldError(FleetmapError, ValueError):
         return f"{self.reason}, got {self.value!r}"
 
 
-def dotted(path: tuple[str | int, ...]) -> str:
-    """A field's place as text: ``("events", 1, "at")`` -> ``events[1].at``; ``()`` -> ``""``."""
+def dotted(path: tuple[str | int, ...], root: str = "") -> str:
+    """A field's place as text: ``("events", 1, "at")`` -> ``events[1].at``; ``()`` -> ``root``."""
     text = ""
     for part in path:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text
+    return text or root

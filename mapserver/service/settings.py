@@ -55,7 +55,7 @@ from pydantic_settings import (
 )
 
 from mapserver.core.belief import BeliefGrid
-from mapserver.core.errors import FleetmapError
+from mapserver.core.errors import FleetmapError, dotted
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import DEFAULT_MAX_BEAMS
@@ -64,7 +64,6 @@ from mapserver.service.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCA
 from mapserver.service.validation import (
     Section,
     domain_section,
-    dotted,
     error,
     located,
     mark_unknown_keys,

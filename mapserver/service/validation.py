@@ -36,7 +36,7 @@ from pydantic import (
 )
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from mapserver.core.errors import FieldError
+from mapserver.core.errors import FieldError, dotted
 
 Loc = tuple[str | int, ...]
 """Where a value sits: mapping keys and list indices from the top."""
@@ -52,17 +52,6 @@ MISSING: Any = _Missing()
 
 _TAG = "<{}>"
 """How a union variant is tagged (``variant``); tags are dropped from error locations."""
-
-
-def dotted(loc: Loc, root: str = "") -> str:
-    """``("events", 1, "at")`` -> ``events[1].at``; the empty location is ``root``."""
-    text = ""
-    for part in loc:
-        if isinstance(part, int):
-            text += f"[{part}]"
-        else:
-            text += f".{part}" if text else str(part)
-    return text or root
 
 
 def short_repr(value: Any) -> str:

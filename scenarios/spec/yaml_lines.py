@@ -25,8 +25,8 @@ import yaml
 from pydantic import BaseModel, ValidationError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from mapserver.core.errors import FleetmapError
-from mapserver.service.validation import MISSING, dotted, problems, short_repr
+from mapserver.core.errors import FleetmapError, dotted
+from mapserver.service.validation import MISSING, problems, short_repr
 
 FieldPath = tuple[str | int, ...]
 """Where a value sits in the document: mapping keys and list indices from the top."""
