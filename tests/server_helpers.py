@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import yaml
+from fastapi.testclient import TestClient
 
+from mapserver.api.app import create_app
 from mapserver.service.settings import Settings, load_settings
 from scenarios.run.embedded_server import EmbeddedServer
 
@@ -22,6 +25,15 @@ def small_settings(data_dir: Path, **overrides) -> Settings:
     return load_settings(
         None, {"data_dir": data_dir, "grid": GRID, "server": TEST_SERVER, **overrides}
     )
+
+
+@pytest.fixture
+def limited_client(tmp_path):
+    """A test client of an open server on a small grid whose bodies may hold 10,000 bytes
+    (import it into a test module to use it)."""
+    settings = small_settings(tmp_path / "data", limits={"max_body_bytes": 10_000})
+    with TestClient(create_app(settings)) as test_client:
+        yield test_client
 
 
 def scan_body(stamp: float = 1.0, unit: str = "u1", x: float = 5.0, y: float = 5.0, **fields):

@@ -32,6 +32,8 @@ from mapserver.api.body import quote
 from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
 from mapserver.api.metrics import ServerMetrics, method_label
 from mapserver.api.planning import CostmapPlanner, GridPlanning
+from mapserver.api.routes_scans import INGEST
+from mapserver.api.scan_ingress import ScanIngress
 from mapserver.api.schemas import (
     CellsIn,
     ErrorOut,
@@ -98,6 +100,10 @@ def create_app(
     _complete_openapi(app)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
+    scan_routes = {route.path: route for route in routes_scans.router.routes}
+    app.add_middleware(
+        ScanIngress, handlers=INGEST, routes=scan_routes, on_error=_http_error
+    )  # innermost of the edge: inside the body, Host and latency guards
     app.add_middleware(BodyMiddleware, settings=settings)
     app.add_middleware(LocalOnlyMiddleware, settings=settings)
     app.add_middleware(LatencyMiddleware, metrics=app.state.metrics)  # outermost: sees all

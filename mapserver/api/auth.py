@@ -21,7 +21,7 @@ def require(action: str) -> Callable[[Request], None]:
     """A FastAPI dependency that admits a request allowed to ``action`` (WRITE or READ);
     the admitted token's settings are left in ``request.state.token`` (None when open)."""
 
-    def check(request: Request) -> None:
+    async def check(request: Request) -> None:  # async: no worker-thread hop per request
         settings: Settings = request.app.state.settings
         request.state.token = None
         if settings.open_access:

@@ -99,7 +99,18 @@ def _float_range_int(text: str) -> int | float:
     return value
 
 
-def body_schema(model: type) -> dict[str, Any]:
-    """``openapi_extra`` for a route that reads its body itself: it takes ``model``."""
-    schema = {"$ref": f"#/components/schemas/{model.__name__}"}
-    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema}}}}
+def body_schema(model: type, binary_type: str | None = None) -> dict[str, Any]:
+    """``openapi_extra`` for a route that reads its body itself: it takes ``model`` as JSON
+    (and, with ``binary_type``, the binary scan encoding of docs/scan-binary.md)."""
+    content: dict[str, Any] = {
+        "application/json": {"schema": {"$ref": f"#/components/schemas/{model.__name__}"}}
+    }
+    if binary_type is not None:
+        content[binary_type] = {
+            "schema": {
+                "type": "string",
+                "format": "binary",
+                "description": "fixed little-endian header, float32 ranges: docs/scan-binary.md",
+            }
+        }
+    return {"requestBody": {"required": True, "content": content}}

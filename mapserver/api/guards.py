@@ -6,7 +6,8 @@ page in a browser on the same machine can neither post to it nor read it by DNS
 rebinding.
 
 ``BodyMiddleware``: a POST, PUT or PATCH must declare ``Content-Type: application/json``
-(parameters such as ``charset`` allowed; 415 otherwise); every request may send at most
+(parameters such as ``charset`` allowed), or for scans (``SCAN_PATHS``) the binary scan
+encoding's ``application/vnd.fleetmap.scan`` (415 otherwise); every request may send at most
 ``limits.max_body_bytes`` bytes of body, declared or streamed (413), and must send all
 of it within ``server.body_timeout_s`` seconds of its headers (408). Every route gets these bounds,
 whether it reads its body itself or through a pydantic model.
@@ -23,10 +24,12 @@ from fastapi import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from mapserver.core.errors import FleetmapError
+from mapserver.core.scan_binary import CONTENT_TYPE as BINARY_SCAN_TYPE
 from mapserver.service.settings import Settings, is_loopback
 
 BODY_METHODS = frozenset({"POST", "PUT", "PATCH"})
 JSON_TYPE = "application/json"
+SCAN_PATHS = frozenset({"/v1/scans", "/v1/scans/batch"})  # also take binary scan bodies
 
 
 class BodyRefused(FleetmapError, HTTPException):
@@ -49,6 +52,11 @@ async def refuse(send: Send, status: int, detail: str) -> None:
         }
     )
     await send({"type": "http.response.body", "body": body})
+
+
+def media_type(content_type: str | None) -> str:
+    """The media type of a Content-Type header, lower case, without parameters."""
+    return (content_type or "").partition(";")[0].strip().lower()
 
 
 def header(scope: Scope, name: bytes) -> str | None:
@@ -127,7 +135,7 @@ class BodyMiddleware:
         content_type = header(scope, b"content-type")
         if scope["method"] not in BODY_METHODS:
             content_type = JSON_TYPE  # a GET's body, if any, is only bounded
-        problem = self.problem(content_type, header(scope, b"content-length"))
+        problem = self.problem(content_type, header(scope, b"content-length"), scope["path"])
         if problem is not None:
             await refuse(send, *problem)
             return
@@ -145,11 +153,14 @@ class BodyMiddleware:
                 raise
             await refuse(send, exc.status_code, exc.detail)
 
-    def problem(self, content_type: str | None, length: str | None) -> tuple[int, str] | None:
-        """(status, detail) refusing a request by its headers alone, or None."""
-        media = (content_type or "").partition(";")[0].strip().lower()
-        if media != JSON_TYPE:
-            return 415, f"content-type: must be {JSON_TYPE}, got {content_type!r}"
+    def problem(
+        self, content_type: str | None, length: str | None, path: str = ""
+    ) -> tuple[int, str] | None:
+        """(status, detail) refusing a request to ``path`` by its headers alone, or None."""
+        media = media_type(content_type)
+        if media != JSON_TYPE and not (media == BINARY_SCAN_TYPE and path in SCAN_PATHS):
+            also = f" (or {BINARY_SCAN_TYPE})" if path in SCAN_PATHS else ""
+            return 415, f"content-type: must be {JSON_TYPE}{also}, got {content_type!r}"
         if length is not None and (not length.strip().isdigit() or int(length) > self.limit):
             return 413, f"body: at most {self.limit} bytes (limits.max_body_bytes), got {length}"
         return None

@@ -5,18 +5,34 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Request
 
 from mapserver.api.auth import WRITE, require, require_unit
-from mapserver.api.body import body_schema, quote, read_json
+from mapserver.api.body import body_schema, parse_json, quote
+from mapserver.api.guards import media_type
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.core.scan import Scan, ScanError
+from mapserver.core.scan_binary import CONTENT_TYPE, ScanEncodingError, decode_scans
 from mapserver.service.map_service import MapService
 from mapserver.service.scan_gate import IngestError
 
 router = APIRouter(tags=["scans"])
+ADMIT_WRITE = require(WRITE)
 
 ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 503)}
+
+
+async def _body(request: Request, batch: bool) -> Any:
+    """The body as JSON, or a binary scan body as the same mappings (docs/scan-binary.md):
+    one scan, or for a batch ``{"scans": [...]}``; 400 when it is neither."""
+    raw = await request.body()
+    if media_type(request.headers.get("content-type")) != CONTENT_TYPE:
+        return parse_json(raw)
+    try:
+        scans = decode_scans(raw, batch)
+    except ScanEncodingError as exc:
+        raise HTTPException(400, str(exc)) from None
+    return {"scans": scans} if batch else scans[0]
 
 
 def _parse(request: Request, item: Any, prefix: str) -> Scan:
@@ -41,31 +57,18 @@ async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
     return acks
 
 
-@router.post(
-    "/v1/scans",
-    response_model=ScanAck,
-    responses=ERRORS,
-    openapi_extra=body_schema(ScanIn),
-    dependencies=[Depends(require(WRITE))],
-    summary="Post one scan; durable once acknowledged",
-)
-async def post_scan(request: Request) -> ScanAck:
-    body = await read_json(request)
-    scan = _parse(request, body, "")
+async def ingest_scan(request: Request) -> dict[str, int]:
+    """``POST /v1/scans``: admit, parse, submit; the ack as a JSON object."""
+    await ADMIT_WRITE(request)
+    scan = _parse(request, await _body(request, batch=False), "")
     (ack,) = await _submit(request, [scan])
-    return ScanAck(seq=ack.seq, map_version=ack.map_version)
+    return {"seq": ack.seq, "map_version": ack.map_version}
 
 
-@router.post(
-    "/v1/scans/batch",
-    response_model=ScanBatchAck,
-    responses=ERRORS,
-    openapi_extra=body_schema(ScanBatchIn),
-    dependencies=[Depends(require(WRITE))],
-    summary="Post several scans; all are accepted or none",
-)
-async def post_scans(request: Request) -> ScanBatchAck:
-    body = await read_json(request)
+async def ingest_batch(request: Request) -> dict[str, list[dict[str, int]]]:
+    """``POST /v1/scans/batch``: all the scans or none; one ack each, in order."""
+    await ADMIT_WRITE(request)
+    body = await _body(request, batch=True)
     limits = request.app.state.settings.limits
     items = body.get("scans") if isinstance(body, dict) else None
     if not isinstance(items, list) or not items:
@@ -74,4 +77,32 @@ async def post_scans(request: Request) -> ScanBatchAck:
         raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
     scans = [_parse(request, item, f"scans[{i}].") for i, item in enumerate(items)]
     acks = await _submit(request, scans)
-    return ScanBatchAck(acks=[ScanAck(seq=a.seq, map_version=a.map_version) for a in acks])
+    return {"acks": [{"seq": a.seq, "map_version": a.map_version} for a in acks]}
+
+
+INGEST = {"/v1/scans": ingest_scan, "/v1/scans/batch": ingest_batch}
+"""The scan routes by path, for ``scan_ingress.ScanIngress``, which answers them."""
+
+
+# The routes below document the two operations in the OpenAPI schema; requests to them are
+# answered by ``ScanIngress`` before FastAPI's router (the same handlers, less overhead).
+@router.post(
+    "/v1/scans",
+    response_model=ScanAck,
+    responses=ERRORS,
+    openapi_extra=body_schema(ScanIn, CONTENT_TYPE),
+    summary="Post one scan; durable once acknowledged",
+)
+async def post_scan(request: Request) -> dict[str, int]:
+    return await ingest_scan(request)
+
+
+@router.post(
+    "/v1/scans/batch",
+    response_model=ScanBatchAck,
+    responses=ERRORS,
+    openapi_extra=body_schema(ScanBatchIn, CONTENT_TYPE),
+    summary="Post several scans; all are accepted or none",
+)
+async def post_scans(request: Request) -> dict[str, list[dict[str, int]]]:
+    return await ingest_batch(request)

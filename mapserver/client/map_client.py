@@ -42,10 +42,13 @@ Errors - every failure raises a subclass of ``MapClientError``; each names the e
 
 Wire format notes:
 
-- Scans are sent as JSON. A ``Scan``'s no-return beams go as ``2 * range_max + 1`` (no
-  return under REP 117, and strict JSON); a mapping is sent as given, ``Infinity`` tokens
-  included (docs/http-api.md 2.1 allows them), so bodies are encoded here rather than by httpx,
-  which refuses non-finite floats.
+- ``Scan`` objects are sent in the binary scan encoding (docs/scan-binary.md: a fixed
+  header and float32 ranges, ``Content-Type: application/vnd.fleetmap.scan``), unless the
+  client was made with ``scan_encoding="json"``. A scan given as a mapping goes as JSON,
+  as given, ``Infinity`` tokens included (docs/http-api.md 2.1 allows them), so bodies are
+  encoded here rather than by httpx, which refuses non-finite floats; a ``Scan`` sent as
+  JSON has its no-return beams as ``2 * range_max + 1`` (no return under REP 117, and
+  strict JSON).
 - ``POST /v1/scans/batch`` takes ``{"scans": [scan, ...]}`` and replies
   ``200 {"acks": [{"seq": n, "map_version": v}, ...]}``, one ack per scan in order
   (this reply shape is the project's extension of docs/http-api.md 2.1).
@@ -88,6 +91,8 @@ from mapserver.api.schemas import (
 from mapserver.core.errors import FleetmapError, dotted
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
+from mapserver.core.scan_binary import CONTENT_TYPE as BINARY_SCAN_TYPE
+from mapserver.core.scan_binary import encode_batch, encode_scan
 
 # ---------------------------------------------------------------------------- errors
 
@@ -203,6 +208,8 @@ class MapClient:
     retries: how many times a 429 or 503 reply is retried (0: never).
     max_retry_wait_s: [s] the longest wait before a retry, whatever ``Retry-After`` says.
     sleep: how to wait [s] (``time.sleep``; a parameter for tests).
+    scan_encoding: ``"binary"`` (docs/scan-binary.md; ranges rounded to float32, a quarter
+    of the bytes and no number parsing on the server) or ``"json"``, for ``Scan`` objects.
     """
 
     def __init__(
@@ -213,6 +220,7 @@ class MapClient:
         retries: int = 2,
         max_retry_wait_s: float = 5.0,
         sleep: Callable[[float], None] = time.sleep,
+        scan_encoding: str = "binary",
     ) -> None:
         if not http.base_url.host:
             raise ValueError(
@@ -228,6 +236,8 @@ class MapClient:
             timeout = httpx.Timeout(float(timeout))
         if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
             raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+        if scan_encoding not in ("binary", "json"):
+            raise ValueError(f"scan_encoding must be 'binary' or 'json', got {scan_encoding!r}")
         if not (isinstance(max_retry_wait_s, int | float) and max_retry_wait_s >= 0):
             raise ValueError(f"max_retry_wait_s must be >= 0 seconds, got {max_retry_wait_s!r}")
         self._http = http
@@ -236,13 +246,13 @@ class MapClient:
         self._retries = retries
         self._max_retry_wait_s = float(max_retry_wait_s)
         self._sleep = sleep
+        self._binary = scan_encoding == "binary"
 
     # -- scans (2.1)
 
     def post_scan(self, scan: Scan | Mapping[str, Any]) -> ScanAck:
         """Send one scan (a ``Scan`` or its docs/http-api.md 2.1 dict as is); durable once acked."""
-        body = _scan_body(scan)
-        return self._json("POST", "/v1/scans", ScanAck, body=body, fast=isinstance(scan, Scan))
+        return self._json("POST", "/v1/scans", ScanAck, self._scans_payload([scan], batch=False))
 
     def post_scans(self, scans: Iterable[Scan | Mapping[str, Any]]) -> list[ScanAck]:
         """Send scans in one ``POST /v1/scans/batch``; one ack per scan, in order.
@@ -252,11 +262,19 @@ class MapClient:
         scans = list(scans)
         if not scans:
             return []
-        bodies = [_scan_body(scan) for scan in scans]
+        payload = self._scans_payload(scans, batch=True)
+        reply = self._json("POST", "/v1/scans/batch", ScanBatchAck, payload)
+        return _same_count("POST /v1/scans/batch", "acks", reply.acks, len(scans))
+
+    def _scans_payload(self, scans: list[Scan | Mapping[str, Any]], batch: bool) -> Payload:
+        """Scans as a body: binary (docs/scan-binary.md) when all are ``Scan`` objects and
+        the client sends binary, else JSON (a mapping goes as given)."""
+        if self._binary and all(isinstance(scan, Scan) for scan in scans):
+            content = encode_batch(scans) if batch else encode_scan(scans[0])
+            return content, BINARY_SCAN_TYPE
         fast = all(isinstance(scan, Scan) for scan in scans)
-        endpoint = "POST /v1/scans/batch"
-        reply = self._json("POST", "/v1/scans/batch", ScanBatchAck, {"scans": bodies}, fast=fast)
-        return _same_count(endpoint, "acks", reply.acks, len(bodies))
+        bodies = [_scan_body(scan, plain=not fast) for scan in scans]
+        return _json_payload({"scans": bodies} if batch else bodies[0], fast)
 
     # -- map (2.2, 2.3)
 
@@ -321,13 +339,13 @@ class MapClient:
         body: dict[str, Any] = {"points": _rows("points", points, 2)}
         if at is not None:
             body["at"] = float(at)
-        reply = self._json("POST", "/v1/query/cells", CellsOut, body=body)
+        reply = self._json("POST", "/v1/query/cells", CellsOut, _json_payload(body))
         return _same_count("POST /v1/query/cells", "cells", reply.cells, len(body["points"]))
 
     def query_segments(self, segments: Sequence[Sequence[float]] | np.ndarray) -> list[SegmentOut]:
         """Cost, blockage and unknown share along each segment ``(x0, y0, x1, y1)`` [m]."""
         body = {"segments": _rows("segments", segments, 4)}
-        reply = self._json("POST", "/v1/query/segments", SegmentsOut, body=body)
+        reply = self._json("POST", "/v1/query/segments", SegmentsOut, _json_payload(body))
         sent = len(body["segments"])
         return _same_count("POST /v1/query/segments", "segments", reply.segments, sent)
 
@@ -354,7 +372,7 @@ class MapClient:
         }
         if unit_id is not None:
             body["unit_id"] = unit_id
-        return self._json("POST", "/v1/plan", PlanOut, body=body)
+        return self._json("POST", "/v1/plan", PlanOut, _json_payload(body))
 
     # -- units (project extension, for the viewer)
 
@@ -364,7 +382,7 @@ class MapClient:
         bodies = [_unit_body(f"units[{i}]", unit) for i, unit in enumerate(units)]
         if not bodies:
             return 0
-        return self._json("POST", "/v1/units", UnitsAck, body={"units": bodies}).tracked
+        return self._json("POST", "/v1/units", UnitsAck, _json_payload({"units": bodies})).tracked
 
     def units(self) -> list[UnitState]:
         """The latest published state of every unit, ordered by ``unit_id``."""
@@ -394,24 +412,17 @@ class MapClient:
         method: str,
         path: str,
         params: Mapping[str, Any] | None = None,
-        body: Any = None,
-        fast: bool = False,
+        payload: Payload | None = None,
     ) -> httpx.Response:
         """One request with auth and timeout; returns a 2xx response or raises.
 
-        ``fast``: the body holds only finite floats outside numpy arrays (bodies built from
-        ``Scan`` objects), so orjson encodes it (NaN in arrays as null, an invalid beam);
-        other bodies go through ``json`` so that ``Infinity`` tokens pass as given.
+        payload: the body and its content type (``_json_payload``, ``_scans_payload``).
         """
         endpoint = f"{method} {path}"
         headers = dict(self._headers)
         content = None
-        if body is not None:
-            if fast:
-                content = orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
-            else:
-                content = json.dumps(body, separators=(",", ":")).encode()
-            headers["Content-Type"] = "application/json"
+        if payload is not None:
+            content, headers["Content-Type"] = payload
         for attempt in range(self._retries + 1):
             try:
                 response = self._http.request(
@@ -445,13 +456,12 @@ class MapClient:
         method: str,
         path: str,
         model: type[Reply],
-        body: Any = None,
+        payload: Payload | None = None,
         params: Mapping[str, Any] | None = None,
-        fast: bool = False,
     ) -> Reply:
         """A request whose reply is the JSON object ``model`` (a schema of the API),
         validated strictly: a reply that breaks it is a ``MapProtocolError``."""
-        response = self._send(method, path, params, body, fast)
+        response = self._send(method, path, params, payload)
         try:
             return model.model_validate_json(response.content, strict=True)
         except ValidationError as exc:
@@ -497,6 +507,9 @@ class MapClient:
 # ---------------------------------------------------------------------------- parsing
 
 Reply = TypeVar("Reply", bound=BaseModel)
+Payload = tuple[bytes, str]
+"""A request body and its content type."""
+JSON_TYPE = "application/json"
 Item = TypeVar("Item")
 
 
@@ -559,17 +572,29 @@ def _same_count(endpoint: str, key: str, items: list[Item], sent: int) -> list[I
     return items
 
 
-def _scan_body(scan: Scan | Mapping[str, Any]) -> Any:
+def _json_payload(body: Any, fast: bool = False) -> Payload:
+    """``body`` as JSON bytes. ``fast``: it holds only finite floats outside numpy arrays
+    (bodies built from ``Scan`` objects), so orjson encodes it (NaN in arrays as null, an
+    invalid beam); other bodies go through ``json`` so that ``Infinity`` tokens pass as
+    given (httpx refuses non-finite floats)."""
+    if fast:
+        return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY), JSON_TYPE
+    return json.dumps(body, separators=(",", ":")).encode(), JSON_TYPE
+
+
+def _scan_body(scan: Scan | Mapping[str, Any], plain: bool) -> Any:
     """A scan's docs/http-api.md 2.1 JSON object; a mapping is sent as is (the server validates).
 
     A Scan's no-return beams (+inf) are sent as ``2 * range_max + 1``: also "no return"
     under REP 117 (any value above range_max), but strict JSON, which the server parses
-    about ten times faster than text holding ``Infinity``.
+    about ten times faster than text holding ``Infinity``. Its ranges are a numpy array
+    (for orjson), or with ``plain`` a list holding None for invalid beams (for ``json``).
     """
     if isinstance(scan, Scan):
         body = scan.to_dict(with_ranges=False)
         no_return = 2.0 * scan.range_max + 1.0
-        body["ranges"] = np.where(scan.ranges == math.inf, no_return, scan.ranges)
+        ranges = np.where(scan.ranges == math.inf, no_return, scan.ranges)
+        body["ranges"] = [None if r != r else r for r in ranges.tolist()] if plain else ranges
         return body
     if isinstance(scan, Mapping):
         return dict(scan)

@@ -20,6 +20,7 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -110,7 +111,12 @@ class Scan:
     def digest(self) -> bytes:
         """16 bytes that identify the scan's content (every field, ranges bit for bit
         with every NaN alike): equal digests, equal scans. Tells a retry of an
-        acknowledged scan from another scan at the same stamp."""
+        acknowledged scan from another scan at the same stamp. Computed once (a scan is
+        immutable)."""
+        return self._digest
+
+    @cached_property
+    def _digest(self) -> bytes:
         header = json.dumps(self.to_dict(with_ranges=False), sort_keys=True).encode()
         ranges = np.where(np.isnan(self.ranges), np.nan, self.ranges).astype("<f8")
         return hashlib.blake2b(header + b"\0" + ranges.tobytes(), digest_size=16).digest()

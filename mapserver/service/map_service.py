@@ -7,9 +7,13 @@ submitted; one ingest thread takes them in arrival order, and everything that ar
 meanwhile is applied as one group (group commit): the state checks (``scan_gate``: a
 unit's stamps never go backwards, retries answered with their ack, the sensor on the map,
 the fleet clock's rule), one journal transaction (durable before any reply), fusion of
-each scan, one costmap refresh for the group. A rejected submission
-changes nothing. The map's ``version`` is the journal ``seq`` of the last scan fused, so
-it increases with every accepted scan and is the same after a restart.
+each scan; then the submissions are answered. A rejected submission changes nothing.
+The costmap follows the belief lazily: the boxes the scans touched are kept, and the
+costmap is brought up to the belief by the first read that needs it (so every read sees
+every acknowledged scan), or by the ingest thread once ``reads.costmap_refresh_s`` [s]
+passed since the last refresh: a fleet's scans of the same places between two reads
+are composed and inflated once. The map's ``version`` is the journal ``seq`` of the last
+scan fused, so it increases with every accepted scan and is the same after a restart.
 
 Reads take the lock only to copy or gather what they need (a costmap of one version with
 its version and stamp, the values at queried points) and compute outside it, so a slow
@@ -37,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.core.belief import BeliefGrid
+from mapserver.core.belief import BeliefGrid, CellBox
 from mapserver.core.errors import FleetmapError
 from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.patch import Patch
@@ -49,13 +53,13 @@ from mapserver.core.queries import (
     sample_cells,
 )
 from mapserver.core.scan import Scan
-from mapserver.costmap.layered import LayeredCostmap
+from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.service.fleet_clock import FleetClock
 from mapserver.service.scan_gate import Ack, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
-from mapserver.store.journal import Journal, JournalError, journal_path
+from mapserver.store.journal import Journal, JournalError, JournalRow, journal_path, journal_row
 from mapserver.store.journal_reading import read_records
 from mapserver.store.snapshot_state import load_snapshot_into
 
@@ -64,6 +68,7 @@ logger = logging.getLogger(__name__)
 MAP_SETTINGS_FILE = "map-settings.json"
 LOCK_FILE = "server.lock"
 MAX_GROUP = 512  # scans applied together at most
+MAX_DIRTY_BOXES = 256  # fused boxes kept apart for the costmap; beyond, merged
 
 
 class DataDirError(FleetmapError, RuntimeError):
@@ -83,6 +88,7 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     future: Future
+    rows: dict[int, JournalRow]  # id(scan) -> its journal row, encoded by the submitter
 
 
 class MapService:
@@ -124,11 +130,14 @@ class MapService:
             settings.limits.max_beams,
         )
         self._lock = threading.Lock()
+        self._refresh_s = settings.reads.costmap_refresh_s
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
         self._snapshotter: threading.Thread | None = None
         self.fusion_seconds = 0.0  # [s] total, for metrics
+        self._dirty: list[CellBox] = []  # boxes fused since the costmap's last refresh
+        self._costmap_refreshed = time.monotonic()
         self._closed = False
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
         self._worker.start()
@@ -195,8 +204,13 @@ class MapService:
         future: Future = Future()
         if self._closed:
             future.set_exception(IngestError(503, "the map server is shutting down"))
-        else:
-            self._queue.put(_Submission(scans, future))
+            return future
+        # Encoded here, on the submitter's thread (the event loop's, between requests),
+        # so that the one ingest thread only writes and fuses.
+        rows = {id(scan): journal_row(scan.journal_record()) for scan in scans}
+        for scan in scans:
+            scan.digest()  # computed once and kept: the gate compares it
+        self._queue.put(_Submission(scans, future, rows))
         return future
 
     def ingest(self, scans: list[Scan]) -> list[Ack]:
@@ -247,7 +261,8 @@ class MapService:
                 accepted.append((sub, outcome))
             if check.new:
                 try:
-                    seqs = self.journal.append([scan.journal_record() for scan in check.new])
+                    rows = {k: v for sub, _ in accepted for k, v in sub.rows.items()}
+                    seqs = self.journal.append_rows([rows[id(scan)] for scan in check.new])
                 except Exception as exc:  # disk full, I/O error: nothing was fused
                     check.abandon()
                     for sub, _ in accepted:
@@ -256,14 +271,25 @@ class MapService:
                 t0 = time.perf_counter()
                 results = self.belief.fuse_many(check.new)
                 self.version = seqs[-1]
-                boxes = [r.box for r in results]
-                self.costmap.update(self.belief.stamp, boxes, version=self.version)
+                self._dirty += [r.box for r in results]
+                if time.monotonic() - self._costmap_refreshed >= self._refresh_s:
+                    self._costmap_current()
+                elif len(self._dirty) > MAX_DIRTY_BOXES:
+                    self._dirty = merge_regions(self._dirty)
                 self.fusion_seconds += time.perf_counter() - t0
                 self._since_snapshot += len(seqs)
                 acks = [Ack(seq, self.version) for seq in seqs]
             check.commit(acks)
         for sub, entries in accepted:
             sub.future.set_result(check.answers(entries, acks))
+
+    def _costmap_current(self) -> None:
+        """Bring the costmap up to the belief: the boxes fused since its last refresh,
+        composed and inflated at the belief's stamp (the caller holds the lock)."""
+        if self.costmap.version != self.version or self._dirty:
+            self.costmap.update(self.belief.stamp, self._dirty, version=self.version)
+            self._dirty = []
+        self._costmap_refreshed = time.monotonic()
 
     def _snapshot_if_due(self) -> None:
         """Copy the belief and save it on a background thread, at most one at a time."""
@@ -337,6 +363,7 @@ class MapService:
     def costmap_read(self, at: float | None = None) -> GridRead:
         """The costmap at ``at`` [s] (default: the map's stamp), copied at one version."""
         with self._lock:
+            self._costmap_current()
             if at is None or at == self.costmap.stamp:
                 return GridRead(self.costmap.costs.copy(), self.version, self.costmap.stamp)
             layers = self._frozen_layers()
@@ -364,6 +391,7 @@ class MapService:
         """(current version, its stamp [s], patches since ``version`` or None when a full
         read is due)."""
         with self._lock:
+            self._costmap_current()
             return self.version, self.costmap.stamp, self.costmap.patches_since(version)
 
     def cell_columns(self, points: Any, at: float | None = None) -> dict[str, list]:
@@ -376,6 +404,7 @@ class MapService:
         gather them (or, at another stamp, to copy the belief): costmaps at other stamps
         are built outside it."""
         with self._lock:
+            self._costmap_current()
             when = self.belief.stamp if at is None else at
             current = at is None or at == self.costmap.stamp
             if current:
@@ -390,6 +419,7 @@ class MapService:
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
         """docs/http-api.md 2.5 reports on the current costmap, copied under the lock."""
         with self._lock:
+            self._costmap_current()
             costs = self.costmap.costs.copy()
         return query_segments(self.geometry, costs, segments)
 

@@ -240,6 +240,10 @@ class ReadSettings(Section):
         run Python, which holds the GIL that scan ingest needs too; after a query of t
         seconds the next waits t x (1 / share - 1). Plans search in numba, without the
         GIL, and are not paced.
+    costmap_refresh_s: [s] how long the costmap may lag the belief while nobody reads
+        it; a read (costmap, updates, queries, plans) always brings it up to every
+        acknowledged scan first. Scans of the same places between two refreshes are
+        composed and inflated once; 0 refreshes after every group of scans.
     """
 
     max_concurrent_queries: int = Field(default=2, gt=0)
@@ -248,6 +252,7 @@ class ReadSettings(Section):
     retry_after_s: int = Field(default=1, gt=0)
     nice: int = Field(default=10, ge=0, le=19)
     query_busy_share: float = Field(default=0.5, gt=0, le=1)
+    costmap_refresh_s: float = Field(default=0.2, ge=0, le=60)
 
 
 class ServerSettings(Section):

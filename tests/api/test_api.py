@@ -209,7 +209,10 @@ def test_segment_queries_report_blocking_and_unknown(open_client):
 
 
 def test_updates_since_the_current_version_are_empty_and_old_ones_full(tmp_path):
-    settings = small_settings(tmp_path / "d", journal={"history": 2})
+    # the costmap refreshed after every scan: four versions, of which two are held
+    settings = small_settings(
+        tmp_path / "d", journal={"history": 2}, reads={"costmap_refresh_s": 0}
+    )
     with TestClient(create_app(settings)) as client:
         for i in range(4):
             client.post("/v1/scans", json=scan_body(stamp=float(i), x=3.0 + i))

@@ -9,7 +9,7 @@ from fastapi import HTTPException
 from fastapi.testclient import TestClient
 from hypothesis import given
 from hypothesis import strategies as st
-from server_helpers import JSON, scan_body, small_settings
+from server_helpers import JSON, limited_client, scan_body, small_settings  # noqa: F401
 
 from mapserver.api.app import create_app
 from mapserver.api.body import MAX_DEPTH, parse_json
@@ -21,10 +21,8 @@ HUGE = "1" + "0" * 400  # 10^400: a JSON integer beyond the float range
 
 
 @pytest.fixture
-def client(tmp_path):
-    settings = small_settings(tmp_path / "data", limits={"max_body_bytes": 10_000})
-    with TestClient(create_app(settings)) as test_client:
-        yield test_client
+def client(limited_client):  # noqa: F811 (the fixture imported from server_helpers)
+    return limited_client
 
 
 def journal(client):
@@ -39,9 +37,13 @@ def test_a_post_not_declared_json_is_a_415_and_changes_nothing(client, path):
         headers = {"content-type": content_type} if content_type else {}
         reply = client.post(path, content=json.dumps(scan_body()), headers=headers)
         assert reply.status_code == 415
+        also = " (or application/vnd.fleetmap.scan)" if path.startswith("/v1/scans") else ""
         assert reply.json() == {
-            "detail": f"content-type: must be application/json, got {content_type!r}"
+            "detail": f"content-type: must be application/json{also}, got {content_type!r}"
         }
+    binary = {"content-type": "application/vnd.fleetmap.scan"}
+    if not path.startswith("/v1/scans"):  # the binary encoding is for scans only
+        assert client.post(path, content=b"FMSC", headers=binary).status_code == 415
     assert journal(client) == before
     charset = {"content-type": "Application/JSON; charset=utf-8"}
     if path == "/v1/scans":

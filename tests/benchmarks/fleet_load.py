@@ -1,16 +1,18 @@
 """Fleet load: many units posting 360-beam scans at 10 Hz to a real map server, closed loop.
 
 Run: ``python -m tests.benchmarks.fleet_load [--units 100] [--rate 10] [--seconds 60]
-[--batch-endpoint] [--timeout 10] [--json]`` (or ``python tests/benchmarks/fleet_load.py``)
+[--beams 1080] [--encoding binary|json] [--batch-endpoint] [--timeout 10]
+[--ceiling-seconds 15] [--json]`` (or ``python tests/benchmarks/fleet_load.py``)
 
 Starts ``fleetmap serve`` (default settings: 100 m x 50 m at 0.05 m, ``decay``, journal
 ``synchronous=FULL``) on a free loopback port in a subprocess. Each of ``--units``
 simulated units (no PyBullet) sits in a 10 m x 5 m lattice cell of the grid, in a
 rectangular bay with a doorway, and moves slowly (at most 0.16 m/s) about its spot; its
-scans are synthetic (360 beams over a full turn, range_max 20 m, ``fleet.lidar``
-defaults; the distance to the bay's walls, no return through the doorway), with its own
+scans are synthetic (``--beams`` beams over a full turn, 1,080 by default, range_max
+20 m; the distance to the bay's walls, no return through the doorway), with its own
 stamp clock (0, 0.1, 0.2 ... s, one step per scan) and encoded as ``MapClient`` sends a
-``Scan`` (orjson, no-return as ``2 * range_max + 1``, ``Content-Type: application/json``).
+``Scan``: ``--encoding binary`` (the default, docs/scan-binary.md) or ``json`` (orjson,
+no-return as ``2 * range_max + 1``, ``Content-Type: application/json``).
 A unit posts each scan as ``POST /v1/scans`` (``--batch-endpoint``: a one-scan
 ``POST /v1/scans/batch``, the endpoint the simulator's ``ScanPoster`` uses for a tick) over
 its own keep-alive connection (a thread per unit with ``http.client``: a sixth of the CPU
@@ -26,8 +28,15 @@ request latency p50/p99/max [ms]; the server's RSS [MiB] every 5 s and its slope
 the second half of the run [MiB/min, Theil-Sen] (flat memory: near 0); journal growth
 [bytes] and scans journaled vs acknowledged; the CPU share of a core used by this load generator
 and by the server (the machine has 2 shared cores: the generator must not be the
-bottleneck). ``--json`` prints the figures as one JSON object on the last line.
-Measures only; tests assert behaviour.
+bottleneck).
+
+The ceiling, in the same run (``--ceiling-seconds``, 0 to skip): the same units post the
+same bodies flat out (no slots: the next post as soon as a reply comes) for that long,
+first to a bare Starlette app under uvicorn whose one route only decodes the body (orjson
+for JSON, ``decode_scans`` for binary) and answers an ack, then to the map server (a
+fresh one): both scans/s, and the server's share of the ceiling.
+``--json`` prints the figures as one JSON object on the last line. Measures only; tests
+assert behaviour.
 """
 
 from __future__ import annotations
@@ -45,6 +54,8 @@ import http.client  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import resource  # noqa: E402
+import socket  # noqa: E402
+import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
@@ -56,29 +67,57 @@ import numpy as np  # noqa: E402
 import orjson  # noqa: E402
 
 from fleet.boxworld import beam_angles  # noqa: E402
+from mapserver.core.scan import Pose2D, Scan  # noqa: E402
+from mapserver.core.scan_binary import CONTENT_TYPE, encode_batch, encode_scan  # noqa: E402
+from scenarios.run.embedded_server import free_port  # noqa: E402
 from tests.benchmarks.server_process import LoggedServer  # noqa: E402
 
-# fleet.lidar.LidarConfig's defaults (that module imports PyBullet, which prints)
-BEAMS, RANGE_MIN, RANGE_MAX = 360, 0.05, 20.0  # [m]
-ANGLE_MIN, ANGLE_INCREMENT = beam_angles(BEAMS, 2 * math.pi)  # a full turn [rad]
+RANGE_MIN, RANGE_MAX = 0.05, 20.0  # [m], fleet.lidar.LidarConfig's defaults
 CELL_X, CELL_Y = 10.0, 5.0  # [m] lattice spacing of the units on the 100 m x 50 m grid
 BAY_X, BAY_Y = 4.0, 2.0  # [m] half sizes of a unit's bay
 SWAY_X, SWAY_Y, SWAY_PERIOD = 1.5, 0.5, 60.0  # [m], [m], [s]: the slow motion
-DOOR = slice(80, 100)  # beams through the doorway: no return
+DOOR = (0.22, 0.28)  # [fraction of the turn] beams through the doorway: no return
 RESOLUTION = 0.05  # [m/cell], the server's default
 RSS_EVERY = 5.0  # [s]
-HEADERS = {"Content-Type": "application/json"}
+HEADERS = {"json": {"Content-Type": "application/json"}, "binary": {"Content-Type": CONTENT_TYPE}}
+CEILING_APP = """
+import sys, orjson, uvicorn
+from starlette.applications import Starlette
+from starlette.responses import Response
+from starlette.routing import Route
+from mapserver.core.scan_binary import CONTENT_TYPE, decode_scans
+count = 0
+async def scans(request):
+    global count
+    body = await request.body()
+    batch = request.url.path.endswith("/batch")
+    if request.headers.get("content-type") == CONTENT_TYPE:
+        n = len(decode_scans(body, batch))
+    else:
+        n = len(orjson.loads(body)["scans"]) if batch else (orjson.loads(body) and 1)
+    acks = [{"seq": count + i + 1, "map_version": count + n} for i in range(n)]
+    count += n
+    return Response(orjson.dumps({"acks": acks} if batch else acks[0]),
+                    media_type="application/json")
+app = Starlette(routes=[Route("/v1/scans", scans, methods=["POST"]),
+                        Route("/v1/scans/batch", scans, methods=["POST"])])
+uvicorn.run(app, host="127.0.0.1", port=int(sys.argv[1]), log_level="warning")
+"""
 
 
 class SyntheticUnit:
-    """Unit ``k``: its bay, its pose at a stamp and its scan bodies (JSON bytes)."""
+    """Unit ``k``: its bay, its pose at a stamp and its scan bodies (``encoding``: "json"
+    or "binary" bytes, as ``MapClient`` sends a ``Scan``)."""
 
-    def __init__(self, k: int, columns: int) -> None:
+    def __init__(self, k: int, columns: int, beams: int = 1080, encoding: str = "binary") -> None:
         self.unit_id = f"u{k}"
         self.cx = CELL_X * (k % columns + 0.5)
         self.cy = CELL_Y * (k // columns + 0.5)
         self.phase = 2 * math.pi * k / 17.0
-        self.angles = ANGLE_MIN + ANGLE_INCREMENT * np.arange(BEAMS)
+        self.angle_min, self.angle_increment = beam_angles(beams, 2 * math.pi)  # a full turn
+        self.angles = self.angle_min + self.angle_increment * np.arange(beams)
+        self.door = slice(round(DOOR[0] * beams), round(DOOR[1] * beams))
+        self.encoding = encoding
 
     def pose(self, stamp: float) -> tuple[float, float, float]:
         w = 2 * math.pi * stamp / SWAY_PERIOD + self.phase
@@ -95,26 +134,33 @@ class SyntheticUnit:
             ty = np.where(dy > 0, self.cy + BAY_Y - y, self.cy - BAY_Y - y) / dy
         r = np.minimum(np.abs(tx), np.abs(ty))
         no_return = 2.0 * RANGE_MAX + 1.0
-        r[DOOR] = no_return
+        r[self.door] = no_return
         r[r > RANGE_MAX] = no_return
         return r
 
-    def body(self, n: int) -> bytes:
-        """The unit's ``n``-th scan (stamp n * 0.1 s) as docs/http-api.md 2.1 JSON."""
+    def body(self, n: int, batch: bool = False) -> bytes:
+        """The unit's ``n``-th scan (stamp n * 0.1 s) in the unit's encoding; ``batch``:
+        as a one-scan ``/v1/scans/batch`` body."""
         stamp = round(n * 0.1, 6)
         x, y, yaw = self.pose(stamp)
+        ranges = self.ranges(x, y, yaw)
+        if self.encoding == "binary":
+            scan = Scan(self.unit_id, stamp, Pose2D(x, y, yaw), self.angle_min,
+                        self.angle_increment, RANGE_MIN, RANGE_MAX, ranges)  # fmt: skip
+            return encode_batch([scan]) if batch else encode_scan(scan)
         scan = {
             "unit_id": self.unit_id,
             "stamp": stamp,
             "frame": "map",
             "pose": {"x": x, "y": y, "yaw": yaw},
-            "angle_min": ANGLE_MIN,
-            "angle_increment": ANGLE_INCREMENT,
+            "angle_min": self.angle_min,
+            "angle_increment": self.angle_increment,
             "range_min": RANGE_MIN,
             "range_max": RANGE_MAX,
-            "ranges": self.ranges(x, y, yaw),
+            "ranges": ranges,
         }
-        return orjson.dumps(scan, option=orjson.OPT_SERIALIZE_NUMPY)
+        content = orjson.dumps(scan, option=orjson.OPT_SERIALIZE_NUMPY)
+        return b'{"scans":[' + content + b"]}" if batch else content
 
 
 @dataclass
@@ -143,22 +189,22 @@ def run_unit(
     timeout: float, batch: bool, tally: Tally,
 ) -> None:  # fmt: skip
     """Closed loop on one keep-alive connection: post, read the reply, sleep to the next
-    slot (late: post at once). After a transport error the next post reconnects."""
+    slot (late: post at once; ``period`` 0: flat out, the next post at once until
+    ``stop``). After a transport error the next post reconnects."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
+    headers = HEADERS[unit.encoding]
     slot, n = 0, 0
     try:
-        while start + slot * period < stop:
+        while (start + slot * period if period else time.monotonic()) < stop:
             delay = start + slot * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            content = unit.body(n)
-            if batch:
-                content = b'{"scans":[' + content + b"]}"
+            content = unit.body(n, batch)
             n += 1
             tally.posted += 1
             t0 = time.perf_counter()
             try:
-                conn.request("POST", path, body=content, headers=HEADERS)
+                conn.request("POST", path, body=content, headers=headers)
                 reply = conn.getresponse()
                 reply.read()
             except TimeoutError:
@@ -173,29 +219,35 @@ def run_unit(
                 tally.statuses[reply.status] += 1
                 tally.acknowledged += reply.status == 200
             tally.last_reply = time.monotonic()
-            due = math.floor((time.monotonic() - start) / period)  # the slot running now
-            slot = max(slot + 1, due)  # late: post at once; the slots passed are missed
+            if period:
+                due = math.floor((time.monotonic() - start) / period)  # the slot running now
+                slot = max(slot + 1, due)  # late: post at once; the slots passed are missed
     finally:
         conn.close()
 
 
-def load(server: LoggedServer, args: argparse.Namespace) -> tuple[Tally, list, float]:
-    """Run every unit in its own thread and sample the server's RSS every RSS_EVERY s;
-    (the units' tally, [(t [s], RSS [MiB])], wall time [s])."""
-    units = [SyntheticUnit(k, lattice_columns(args.units)) for k in range(args.units)]
+def load(
+    port: int, args: argparse.Namespace, seconds: float, flat_out: bool = False,
+    rss_of: LoggedServer | None = None,
+) -> tuple[Tally, list, float]:  # fmt: skip
+    """Run every unit in its own thread against ``port`` for ``seconds`` (``flat_out``: no
+    slots) and sample ``rss_of``'s RSS every RSS_EVERY s; (the units' tally,
+    [(t [s], RSS [MiB])], wall time [s])."""
+    columns = lattice_columns(args.units)
+    units = [SyntheticUnit(k, columns, args.beams, args.encoding) for k in range(args.units)]
     for unit in units:
         unit.body(0)  # warm numpy and orjson outside the measured run
-    period = 1.0 / args.rate
+    period = 0.0 if flat_out else 1.0 / args.rate
     path = "/v1/scans/batch" if args.batch_endpoint else "/v1/scans"
     tallies = [Tally() for _ in units]
     start = time.monotonic() + 0.5
-    stop = start + args.seconds
+    stop = start + seconds
     threads = [
         threading.Thread(
             target=run_unit,
             args=(
                 unit,
-                server.port,
+                port,
                 path,
                 start + period * k / len(units),
                 stop,
@@ -211,9 +263,9 @@ def load(server: LoggedServer, args: argparse.Namespace) -> tuple[Tally, list, f
     for thread in threads:
         thread.start()
     rss = []
-    for k in range(int(args.seconds // RSS_EVERY) + 1):
+    for k in range(int(seconds // RSS_EVERY) + 1):
         time.sleep(max(0.0, start + k * RSS_EVERY - time.monotonic()))
-        rss.append((round(time.monotonic() - start, 1), server.rss_mib()))
+        rss.append((round(time.monotonic() - start, 1), rss_of and rss_of.rss_mib()))
     for thread in threads:
         thread.join()
     total = Tally()
@@ -222,18 +274,54 @@ def load(server: LoggedServer, args: argparse.Namespace) -> tuple[Tally, list, f
     return total, rss, max(total.last_reply, stop) - start
 
 
-def warm_up(url: str, scans: int = 3) -> list[float]:
+def warm_up(url: str, args: argparse.Namespace, scans: int = 3) -> list[float]:
     """Post a few scans of a unit "warmup" before the run (the server compiles its numba
     kernels on the first scan); their latencies [ms]."""
-    unit = SyntheticUnit(0, 1)
+    unit = SyntheticUnit(0, 1, args.beams, args.encoding)
     unit.unit_id = "warmup"
     times = []
     with httpx.Client(base_url=url, timeout=120) as client:
         for n in range(scans):
             t0 = time.perf_counter()
-            client.post("/v1/scans", content=unit.body(n), headers=HEADERS)
+            client.post("/v1/scans", content=unit.body(n), headers=HEADERS[unit.encoding])
             times.append((time.perf_counter() - t0) * 1e3)
     return times
+
+
+def flat_out_rates(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
+    """Scans/s of the units posting flat out to the bare Starlette app, then to a fresh
+    map server, ``args.ceiling_seconds`` each."""
+    port = free_port()
+    ceiling = subprocess.Popen([sys.executable, "-c", CEILING_APP, str(port)],
+                               cwd=HERE.parents[1], stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        wait_for_port(port)
+        bare, _, bare_wall = load(port, args, args.ceiling_seconds, flat_out=True)
+    finally:
+        ceiling.terminate()
+        ceiling.wait()
+    server = LoggedServer(tmp / "flat-out", {"grid": grid_for(args.units)})
+    try:
+        warm_up(server.url, args)
+        ours, _, our_wall = load(server.port, args, args.ceiling_seconds, flat_out=True)
+    finally:
+        server.stop()
+    bare_rate, our_rate = bare.acknowledged / bare_wall, ours.acknowledged / our_wall
+    p99 = float(np.percentile(np.array(ours.latencies) * 1e3, 99)) if ours.latencies else math.nan
+    return {"ceiling_per_s": bare_rate, "flat_out_per_s": our_rate,
+            "share_of_ceiling": our_rate / bare_rate, "flat_out_p99_ms": p99}  # fmt: skip
+
+
+def wait_for_port(port: int, timeout: float = 60.0) -> None:
+    """Until something accepts connections on 127.0.0.1:``port``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise RuntimeError(f"nothing listens on port {port}")
 
 
 def lattice_columns(units: int) -> int:
@@ -265,6 +353,14 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=10.0, help="[Hz] scans per unit")
     parser.add_argument("--seconds", type=float, default=60.0, help="[s] load duration")
     parser.add_argument("--timeout", type=float, default=10.0, help="[s] per request")
+    parser.add_argument("--beams", type=int, default=1080, help="beams per scan (a full turn)")
+    parser.add_argument(
+        "--encoding", choices=("binary", "json"), default="binary", help="scan bodies"
+    )
+    parser.add_argument(
+        "--ceiling-seconds", type=float, default=15.0,
+        help="[s] flat out against a bare Starlette app, then the server (0: skip)",
+    )  # fmt: skip
     parser.add_argument(
         "--batch-endpoint", action="store_true", help="one-scan POST /v1/scans/batch"
     )
@@ -274,12 +370,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
         server = LoggedServer(Path(tmp) / "data", {"grid": grid_for(args.units)})
         try:
-            warm_ms = warm_up(server.url)
+            warm_ms = warm_up(server.url, args)
             journal_before = server.journal_bytes()
             journaled_before = server.journal_count() or 0
             cpu_server0 = server.cpu_seconds() or 0.0
             usage0 = resource.getrusage(resource.RUSAGE_SELF)
-            tally, rss, wall = load(server, args)
+            tally, rss, wall = load(server.port, args, args.seconds, rss_of=server)
             usage1 = resource.getrusage(resource.RUSAGE_SELF)
             cpu_server = (server.cpu_seconds() or 0.0) - cpu_server0
             journal_after = server.journal_bytes()
@@ -287,6 +383,7 @@ def main() -> None:
             server.stop()
         journaled = (server.journal_count() or 0) - journaled_before
         log_tail = server.log_text()[-2000:]
+        ceiling = flat_out_rates(args, Path(tmp)) if args.ceiling_seconds > 0 else {}
 
     gen_cpu = (usage1.ru_utime - usage0.ru_utime) + (usage1.ru_stime - usage0.ru_stime)
     ms = np.array(tally.latencies) * 1e3 if tally.latencies else np.array([math.nan])
@@ -318,6 +415,9 @@ def main() -> None:
         "journaled_scans": journaled,
         "generator_cpu_share": gen_cpu / wall,
         "server_cpu_share": cpu_server / wall,
+        "beams": args.beams,
+        "encoding": args.encoding,
+        **ceiling,
     }
     print(f"fleet load: {args.units} units x {args.rate:g} Hz for {args.seconds:g} s, "
           f"{f['endpoint']}, closed loop (wall {wall:.1f} s)")  # fmt: skip
@@ -347,6 +447,13 @@ def main() -> None:
         f"CPU share of one core: load generator {f['generator_cpu_share']:.0%}, "
         f"server {f['server_cpu_share']:.0%} (2 shared cores)"
     )
+    if ceiling:
+        print(
+            f"flat out for {args.ceiling_seconds:g} s each, the same bodies: bare Starlette "
+            f"{ceiling['ceiling_per_s']:.0f} scans/s, map server {ceiling['flat_out_per_s']:.0f}"
+            f" scans/s ({ceiling['share_of_ceiling']:.0%} of the ceiling; p99 "
+            f"{ceiling['flat_out_p99_ms']:.0f} ms)"
+        )
     if errors and log_tail.strip():
         print("server log tail:\n" + log_tail)
     if args.json:

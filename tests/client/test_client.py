@@ -32,6 +32,8 @@ from mapserver.client import (
     Unauthorized,
 )
 from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan_binary import CONTENT_TYPE as BINARY_SCAN_TYPE
+from mapserver.core.scan_binary import decode_scans, encode_batch, encode_scan
 
 BASE = "http://map.test:8700"
 GEOMETRY = GridGeometry(width=4, height=3, resolution=0.5, origin_x=-1.0, origin_y=2.0)
@@ -58,10 +60,15 @@ class FakeMapServer:
         self.version += 1
         self.costs[self.version] = new
 
-    def client(self, token: str | None = None, timeout: float | httpx.Timeout = 5.0) -> MapClient:
+    def client(
+        self,
+        token: str | None = None,
+        timeout: float | httpx.Timeout = 5.0,
+        scan_encoding: str = "binary",
+    ) -> MapClient:
         # the injected client's own default timeout (60 s) must never apply
         http = httpx.Client(transport=httpx.MockTransport(self.handle), base_url=BASE, timeout=60.0)
-        return MapClient(http, token=token, timeout=timeout)
+        return MapClient(http, token=token, timeout=timeout, scan_encoding=scan_encoding)
 
     @property
     def last(self) -> httpx.Request:
@@ -74,7 +81,7 @@ class FakeMapServer:
         ):
             return httpx.Response(401, json={"detail": "missing or wrong bearer token"})
         route = (request.method, request.url.path)
-        body = json.loads(request.content) if request.content else None
+        body = decoded(request)
         if route == ("POST", "/v1/scans"):
             return httpx.Response(200, json={"seq": 7, "map_version": 42})
         if route == ("POST", "/v1/scans/batch"):
@@ -206,6 +213,17 @@ def body_of(request: httpx.Request) -> dict:
     return json.loads(request.content)
 
 
+def decoded(request: httpx.Request) -> dict | None:
+    """A request's body: JSON, or a binary scan body as the same mappings."""
+    if not request.content:
+        return None
+    if request.headers["content-type"] == BINARY_SCAN_TYPE:
+        batch = request.url.path.endswith("/batch")
+        scans = decode_scans(request.content, batch)
+        return {"scans": scans} if batch else scans[0]
+    return body_of(request)
+
+
 # ---------------------------------------------------------------------------- auth, set-up
 
 
@@ -245,10 +263,26 @@ def test_a_base_url_path_prefix_is_kept():
 # ---------------------------------------------------------------------------- scans
 
 
-def test_post_scan_sends_the_contract_object_and_parses_the_ack():
+def test_post_scan_sends_a_binary_record_by_default_and_parses_the_ack():
+    server = FakeMapServer()
+    scan = make_scan([1.25, math.inf, math.nan, 21.0], stamp=12.3, unit_id="u1")
+    ack = server.client().post_scan(scan)
+    assert ack == ScanAck(seq=7, map_version=42)
+    assert server.last.headers["content-type"] == "application/vnd.fleetmap.scan"
+    assert server.last.content == encode_scan(scan)
+    (sent,) = decode_scans(server.last.content, batch=False)
+    assert (sent["unit_id"], sent["stamp"], sent["pose"]) == (
+        "u1",
+        12.3,
+        {"x": 0.5, "y": 0.5, "yaw": 0.0},
+    )
+    assert np.array_equal(sent["ranges"], [1.25, math.inf, math.nan, 21.0], equal_nan=True)
+
+
+def test_post_scan_sends_the_contract_object_as_json_when_asked():
     server = FakeMapServer()
     scan = make_scan([1.2, math.inf, math.nan, 21.0], stamp=12.3, unit_id="u1")
-    ack = server.client().post_scan(scan)
+    ack = server.client(scan_encoding="json").post_scan(scan)
     assert ack == ScanAck(seq=7, map_version=42)
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/scans")
     sent = body_of(server.last)
@@ -275,7 +309,21 @@ def test_post_scans_sends_one_batch_and_returns_one_ack_per_scan_in_order():
         ScanAck(seq=12, map_version=52),
     ]
     assert (server.last.method, server.last.url.path) == ("POST", "/v1/scans/batch")
+    assert server.last.content == encode_batch(scans)
+    assert [s["stamp"] for s in decoded(server.last)["scans"]] == [0.0, 1.0, 2.0]
+    server.client(scan_encoding="json").post_scans(scans)
     assert [s["stamp"] for s in body_of(server.last)["scans"]] == [0.0, 1.0, 2.0]
+
+
+def test_a_batch_holding_a_mapping_goes_as_json():
+    server = FakeMapServer()
+    server.client().post_scans([make_scan([1.0]), {"unit_id": "u2", "stamp": 1.0}])
+    assert [s["unit_id"] for s in body_of(server.last)["scans"]] == ["u1", "u2"]
+
+
+def test_an_unknown_scan_encoding_is_refused():
+    with pytest.raises(ValueError, match="scan_encoding must be 'binary' or 'json', got 'xml'"):
+        MapClient(httpx.Client(base_url=BASE), scan_encoding="xml")
 
 
 def test_post_scans_of_nothing_sends_nothing():

@@ -1,6 +1,5 @@
 """Posting scans through MapClient: batches in order, acks back, errors surfaced."""
 
-import json
 import threading
 
 import httpx
@@ -10,6 +9,7 @@ import pytest
 from fleet.poster import ScanPoster
 from mapserver.client import MapClient, MapRequestError
 from mapserver.core.scan import Pose2D, Scan
+from mapserver.core.scan_binary import decode_scans
 
 
 def scans(n: int, stamp: float) -> list[Scan]:
@@ -31,7 +31,8 @@ class FakeServer:
     def __call__(self, request: httpx.Request) -> httpx.Response:
         self.gate.wait(10)
         assert request.url.path == "/v1/scans/batch"
-        body = json.loads(request.content)["scans"]
+        assert request.headers["content-type"] == "application/vnd.fleetmap.scan"
+        body = decode_scans(request.content, batch=True)
         if any(s["stamp"] == self.refuse_stamp for s in body):
             return httpx.Response(
                 409, json={"detail": f"stamp: went backwards, got {self.refuse_stamp}"}
