@@ -43,7 +43,12 @@ from mapserver.core.geometry import GridGeometry
 NEUTRAL_COST = 50.0  # NavFn COST_NEUTRAL
 COST_FACTOR = 0.8  # NavFn COST_FACTOR
 SQRT2 = math.sqrt(2.0)
+_ROW_STEPS = (0, 0, 1, -1, 1, 1, -1, -1)  # the 8 moves: E, W, S, N, then the diagonals
+_COL_STEPS = (1, -1, 0, 0, 1, -1, 1, -1)
 ALGORITHMS = ("astar", "dijkstra")
+# A search node, 16 bytes: its g [m]; tag = (bucket - the start's bucket) << 2 | state
+# (0 never expanded, 1 expanded at this g, 2 expanded before and improved since); parent.
+NODE = np.dtype([("g", np.float64), ("tag", np.int32), ("parent", np.int32)])
 BUCKET_WIDTH = 1.0 / 8  # [cells] of f per bucket of the queue
 REOPEN_TOLERANCE = 1e-9  # [cells]: smaller gains on an expanded node are rounding
 
@@ -94,10 +99,9 @@ class GridPlanner:
         self._wp = geometry.width + 2  # a border of LETHAL cells spares the bounds checks
         n = self._wp * (geometry.height + 2)
         self._padded = np.full((geometry.height + 2, self._wp), LETHAL, dtype=np.uint8)
-        self._g = np.full(n, np.inf)
-        self._parent = np.full(n, -1, dtype=np.int32)
-        self._state = np.zeros(n, dtype=np.uint8)
-        self._bucket = np.empty(n, dtype=np.int64)
+        self._nodes = np.zeros(n, dtype=NODE)
+        self._nodes["g"] = np.inf
+        self._nodes["parent"] = -1
         self._touched = np.empty(n, dtype=np.int32)
         self._entry_node = np.empty(1024, dtype=np.int32)
         self._entry_next = np.empty(1024, dtype=np.int32)
@@ -131,19 +135,20 @@ class GridPlanner:
         weights = cell_weights(allow_unknown)
         flat = np.ascontiguousarray(costs).ravel()
         self._padded[1:-1, 1:-1] = costs
-        width = g.resolution * BUCKET_WIDTH
         top = np.max(weights[np.isfinite(weights)])
-        span = int(math.ceil(SQRT2 * g.resolution * (top + 1.0) / width)) + 2
+        # f stays below the grid's size x the dearest step: its buckets fit the tags
+        width = max(g.resolution * BUCKET_WIDTH, g.size * SQRT2 * g.resolution * top / 2**28)
+        span = 1 << int(math.ceil(SQRT2 * g.resolution * (top + 1.0) / width) + 2).bit_length()
         found, cost, expanded, touched, self._entry_node, self._entry_next = _search(
             self._padded.ravel(), self._wp, cells[0], cells[1], weights, g.resolution,
-            float(algorithm == "astar"), width, span, self._g, self._parent, self._state,
-            self._bucket, self._touched, np.empty(span, np.int32), self._entry_node,
-            self._entry_next,
+            float(algorithm == "astar"), width, self._nodes, self._touched,
+            np.empty(span, np.int32), self._entry_node, self._entry_next,
         )  # fmt: skip
         if found:
-            rows, cols = np.divmod(_trace_path(self._parent, cells[0], cells[1]), self._wp)
+            path = _trace_path(self._nodes["parent"], cells[0], cells[1])
+            rows, cols = np.divmod(path, self._wp)
             path_cells = (rows - 1) * g.width + cols - 1
-        _reset(self._g, self._parent, self._state, self._touched, touched)
+        _reset(self._nodes, self._touched, touched)
         planning_ms = (time.perf_counter() - t0) * 1e3
         if not found:
             return PlanResult(False, [], 0.0, 0.0, None, int(expanded), planning_ms)
@@ -174,47 +179,45 @@ def _octile(r1, c1, r2, c2, resolution):
 
 
 @njit(cache=True, nogil=True)
-def _search(costs, wp, start, goal, weights, resolution, hscale, width, span,
-            g, parent, state, bucket, touched, heads, entry_node, entry_next):  # fmt: skip
+def _search(costs, wp, start, goal, weights, resolution, hscale, width,
+            nodes, touched, heads, entry_node, entry_next):  # fmt: skip
     """A* (f = g + hscale x octile; hscale 0 is Dijkstra) from start to goal over a
     bucket queue; returns (found, cost, expanded, touched count, entry_node, entry_next).
 
     ``costs`` is the padded grid (``wp`` columns, a LETHAL border). Bucket ``b`` holds
-    the entries of f in [b, b + 1) x ``width``, a LIFO list each, kept in ``span``
-    circular slots; ``bucket[node]`` is the bucket of the node's current f, so an entry
-    of another bucket is stale. ``state``: 0 never expanded, 1 expanded at its current g,
-    2 expanded before and improved since (reopened)."""
+    the entries of f in [b, b + 1) x ``width``, a LIFO list each, kept in the circular
+    ``heads`` (a power of two slots); a node's tag holds the bucket of its current f, so
+    an entry of another bucket is stale."""
     n_touched = 0
     if weights[costs[start]] == np.inf or weights[costs[goal]] == np.inf:
         return False, 0.0, 0, n_touched, entry_node, entry_next
     goal_r, goal_c = divmod(goal, wp)
     start_r, start_c = divmod(start, wp)
     inv = 1.0 / width
+    mask = heads.shape[0] - 1  # a power of two
     tolerance = REOPEN_TOLERANCE * resolution
     diag = resolution * SQRT2
     heads[:] = -1
     capacity = entry_node.shape[0]
     top = 0  # entries ever used
     free = -1  # recycled entries
-    g[start] = 0.0
+    nodes[start].g = 0.0
     cur = np.int64(hscale * _octile(start_r, start_c, goal_r, goal_c, resolution) * inv)
-    bucket[start] = cur
+    first = cur  # tags hold buckets from here on
     touched[0] = start
     n_touched = 1
     entry_node[0] = start
     entry_next[0] = -1
-    heads[cur % span] = 0
+    heads[cur & mask] = 0
     top = 1
     size = 1
     expanded = 0
-    slot = cur % span
+    slot = cur & mask
     while size > 0:
         while heads[slot] == -1:
             cur += 1
-            slot += 1
-            if slot == span:
-                slot = 0
-        if cur * width >= g[goal]:
+            slot = (slot + 1) & mask
+        if cur * width >= nodes[goal].g:
             break  # every entry left has f >= the goal's cost
         e = heads[slot]
         heads[slot] = entry_next[e]
@@ -222,11 +225,12 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, span,
         free = e
         size -= 1
         node = entry_node[e]
-        if state[node] == 1 or bucket[node] != cur:
+        tag = nodes[node].tag
+        if tag & 3 == 1 or tag >> 2 != cur - first:
             continue  # stale: expanded at this g already, or its f moved
-        if state[node] == 0:
+        if tag & 3 == 0:
             expanded += 1
-        state[node] = 1
+        nodes[node].tag = (tag & ~3) | 1
         if node == goal:
             continue
         if top + 8 > capacity:  # room for this expansion's entries
@@ -238,44 +242,49 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, span,
             grown[:top] = entry_next[:top]
             entry_next = grown
         row, col = divmod(node, wp)
-        base = g[node]
-        for k in range(8):
-            # k = 0..3: E, W, S, N; 4..7: the diagonals
-            if k < 4:
-                dr = 0 if k < 2 else (1 if k == 2 else -1)
-                dc = (1 if k == 0 else -1) if k < 2 else 0
-            else:
-                dr = 1 if k < 6 else -1
-                dc = 1 if (k & 1) == 0 else -1
+        base = nodes[node].g
+        w_east = weights[costs[node + 1]]
+        w_west = weights[costs[node - 1]]
+        w_south = weights[costs[node + wp]]
+        w_north = weights[costs[node - wp]]
+        for k in range(8):  # E, W, S, N, then the diagonals
+            dr = _ROW_STEPS[k]
+            dc = _COL_STEPS[k]
             nb = node + dr * wp + dc
-            w = weights[costs[nb]]
-            if w == np.inf:
-                continue
-            if k >= 4:
-                # no cutting the corner of an impassable cell
-                if weights[costs[node + dc]] == np.inf:
+            if k < 4:
+                w = w_east if k == 0 else (w_west if k == 1 else (w_south if k == 2 else w_north))
+                if w == np.inf:
                     continue
-                if weights[costs[node + dr * wp]] == np.inf:
+                candidate = base + resolution * w
+            else:
+                # no cutting the corner of an impassable cell
+                if (w_east if dc == 1 else w_west) == np.inf:
+                    continue
+                if (w_south if dr == 1 else w_north) == np.inf:
+                    continue
+                w = weights[costs[nb]]
+                if w == np.inf:
                     continue
                 candidate = base + diag * w
-            else:
-                candidate = base + resolution * w
-            old = g[nb]
+            old = nodes[nb].g
             if candidate < old:
+                state = 0
                 if old == np.inf:
                     touched[n_touched] = nb
                     n_touched += 1
-                elif state[nb] == 1:
-                    if candidate > old - tolerance:
-                        continue  # the same cost summed in another order: no reopening
-                    state[nb] = 2
-                g[nb] = candidate
-                parent[nb] = node
+                else:
+                    state = nodes[nb].tag & 3
+                    if state == 1:
+                        if candidate > old - tolerance:
+                            continue  # the same cost summed in another order: no reopening
+                        state = 2
+                nodes[nb].g = candidate
+                nodes[nb].parent = node
                 f = candidate + hscale * _octile(row + dr, col + dc, goal_r, goal_c, resolution)
                 b = np.int64(f * inv)
                 if b < cur:  # rounding only: h is consistent
                     b = cur
-                bucket[nb] = b
+                nodes[nb].tag = ((b - first) << 2) | state
                 if free != -1:
                     e = free
                     free = entry_next[e]
@@ -283,12 +292,13 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, span,
                     e = top
                     top += 1
                 entry_node[e] = nb
-                s = b % span
+                s = b & mask
                 entry_next[e] = heads[s]
                 heads[s] = e
                 size += 1
-    found = g[goal] < np.inf
-    return found, g[goal] if found else 0.0, expanded, n_touched, entry_node, entry_next
+    cost = nodes[goal].g
+    found = cost < np.inf
+    return found, cost if found else 0.0, expanded, n_touched, entry_node, entry_next
 
 
 @njit(cache=True, nogil=True)
@@ -308,13 +318,13 @@ def _trace_path(parent, start, goal):
 
 
 @njit(cache=True, nogil=True)
-def _reset(g, parent, state, touched, n):
+def _reset(nodes, touched, n):
     """Undo a search on the nodes it touched."""
     for i in range(n):
         node = touched[i]
-        g[node] = np.inf
-        parent[node] = -1
-        state[node] = 0
+        nodes[node].g = np.inf
+        nodes[node].tag = 0
+        nodes[node].parent = -1
 
 
 @njit(cache=True, nogil=True)
