@@ -1,4 +1,4 @@
-"""Grid A* and Dijkstra over a Nav2 costmap (numba, flat arrays, a binary heap).
+"""Grid A* and Dijkstra over a Nav2 costmap (numba, flat arrays, a bucket queue).
 
 The grid is 8-connected. Moving onto a cell costs its step length [m] (the resolution,
 times sqrt(2) diagonally) times the cell's weight, NavFn's rule (navfn.cpp ``setCostmap``:
@@ -10,8 +10,18 @@ a free cell weighs 1:
 LETHAL (254) and INSCRIBED (253) cells are never entered. UNKNOWN (255) cells are entered
 only with ``allow_unknown``, at the weight of the highest graded cost (as NavFn maps
 unknown to ``COST_OBS - 1``). A diagonal move may not cut the corner of an impassable
-cell. The A* heuristic is the octile distance [m] (admissible: no weight is below 1), so
+cell. The A* heuristic is the octile distance [m] (consistent: no weight is below 1), so
 A* and Dijkstra find paths of the same cost (Hart, Nilsson, Raphael 1968).
+
+The open list is a bucket queue over f (Dial 1969; Dinitz 1978): bucket b holds the
+nodes of f in [b, b + 1) x ``BUCKET_WIDTH`` cells, each a LIFO list, in a circular array
+as wide as the largest step can raise f. A node is expanded when its bucket comes up, so
+a node of the same bucket may still lower its g afterwards: it is then reopened (label
+correcting), and the search ends only when the lowest bucket left starts at or above the
+goal's g, i.e. every node still open has f >= that cost. The path cost is therefore the
+optimum, as with an exact priority queue, up to floating-point rounding: on an expanded
+node, gains below ``REOPEN_TOLERANCE`` cells (the same cost summed in another order) do
+not reopen it. ``expanded`` counts distinct nodes expanded.
 
 Buffers the size of the grid are allocated once per ``GridPlanner`` and only the nodes a
 search touched are reset, so a search costs what it expands.
@@ -33,7 +43,14 @@ from mapserver.core.geometry import GridGeometry
 NEUTRAL_COST = 50.0  # NavFn COST_NEUTRAL
 COST_FACTOR = 0.8  # NavFn COST_FACTOR
 SQRT2 = math.sqrt(2.0)
+_ROW_STEPS = (0, 0, 1, -1, 1, 1, -1, -1)  # the 8 moves: E, W, S, N, then the diagonals
+_COL_STEPS = (1, -1, 0, 0, 1, -1, 1, -1)
 ALGORITHMS = ("astar", "dijkstra")
+# A search node, 16 bytes: its g [m]; tag = (bucket - the start's bucket) << 2 | state
+# (0 never expanded, 1 expanded at this g, 2 expanded before and improved since); parent.
+NODE = np.dtype([("g", np.float64), ("tag", np.int32), ("parent", np.int32)])
+BUCKET_WIDTH = 1.0 / 8  # [cells] of f per bucket of the queue
+REOPEN_TOLERANCE = 1e-9  # [cells]: smaller gains on an expanded node are rounding
 
 
 def cell_weights(allow_unknown: bool) -> np.ndarray:
@@ -79,14 +96,15 @@ class GridPlanner:
     def __init__(self, geometry: GridGeometry, clearance_cap: float = 2.0) -> None:
         self.geometry = geometry
         self.clearance_cap = clearance_cap
-        n = geometry.size
-        self._g = np.full(n, np.inf)
-        self._parent = np.full(n, -1, dtype=np.int32)
-        self._closed = np.zeros(n, dtype=np.uint8)
+        self._wp = geometry.width + 2  # a border of LETHAL cells spares the bounds checks
+        n = self._wp * (geometry.height + 2)
+        self._padded = np.full((geometry.height + 2, self._wp), LETHAL, dtype=np.uint8)
+        self._nodes = np.zeros(n, dtype=NODE)
+        self._nodes["g"] = np.inf
+        self._nodes["parent"] = -1
         self._touched = np.empty(n, dtype=np.int32)
-        self._keys = np.empty(n, dtype=np.float64)
-        self._heap = np.empty(n, dtype=np.int32)
-        self._pos = np.full(n, -1, dtype=np.int32)
+        self._entry_node = np.empty(1024, dtype=np.int32)
+        self._entry_next = np.empty(1024, dtype=np.int32)
 
     def plan(
         self,
@@ -112,19 +130,25 @@ class GridPlanner:
                     name, list(point), f"must be on the map [{xmin}, {xmax}) x [{ymin}, {ymax})"
                 )
             col, row = g.world_to_cell(*point)
-            cells.append(row * g.width + col)
+            cells.append((row + 1) * self._wp + col + 1)
         t0 = time.perf_counter()
         weights = cell_weights(allow_unknown)
         flat = np.ascontiguousarray(costs).ravel()
-        found, cost, expanded, touched = _search(
-            flat, g.width, g.height, cells[0], cells[1], weights, g.resolution,
-            algorithm == "astar", self._g, self._parent, self._closed, self._touched,
-            self._keys, self._heap, self._pos,
+        self._padded[1:-1, 1:-1] = costs
+        top = np.max(weights[np.isfinite(weights)])
+        # f stays below the grid's size x the dearest step: its buckets fit the tags
+        width = max(g.resolution * BUCKET_WIDTH, g.size * SQRT2 * g.resolution * top / 2**28)
+        span = 1 << int(math.ceil(SQRT2 * g.resolution * (top + 1.0) / width) + 2).bit_length()
+        found, cost, expanded, touched, self._entry_node, self._entry_next = _search(
+            self._padded.ravel(), self._wp, cells[0], cells[1], weights, g.resolution,
+            float(algorithm == "astar"), width, self._nodes, self._touched,
+            np.empty(span, np.int32), self._entry_node, self._entry_next,
         )  # fmt: skip
-        path_cells = (
-            _trace_path(self._parent, cells[0], cells[1]) if found else np.empty(0, np.int64)
-        )
-        _reset(self._g, self._parent, self._closed, self._pos, self._touched, touched)
+        if found:
+            path = _trace_path(self._nodes["parent"], cells[0], cells[1])
+            rows, cols = np.divmod(path, self._wp)
+            path_cells = (rows - 1) * g.width + cols - 1
+        _reset(self._nodes, self._touched, touched)
         planning_ms = (time.perf_counter() - t0) * 1e3
         if not found:
             return PlanResult(False, [], 0.0, 0.0, None, int(expanded), planning_ms)
@@ -146,51 +170,6 @@ class GridPlanner:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sift_up(keys, heap, pos, i):
-    """Move heap slot i up to its place (indexed min-heap: heap[slot] = node, pos[node] =
-    slot, keys[node] = priority)."""
-    node = heap[i]
-    key = keys[node]
-    while i > 0:
-        parent = (i - 1) >> 1
-        other = heap[parent]
-        if keys[other] <= key:
-            break
-        heap[i] = other
-        pos[other] = i
-        i = parent
-    heap[i] = node
-    pos[node] = i
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _pop(keys, heap, pos, size):
-    """Remove and return the node of smallest key from a heap of ``size`` (> 0)."""
-    top = heap[0]
-    pos[top] = -1
-    size -= 1
-    if size == 0:
-        return top
-    node = heap[size]
-    key = keys[node]
-    i = 0
-    while True:
-        child = 2 * i + 1
-        if child >= size:
-            break
-        if child + 1 < size and keys[heap[child + 1]] < keys[heap[child]]:
-            child += 1
-        if keys[heap[child]] >= key:
-            break
-        heap[i] = heap[child]
-        pos[heap[i]] = i
-        i = child
-    heap[i] = node
-    pos[node] = i
-    return top
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _octile(r1, c1, r2, c2, resolution):
     """Octile distance [m] between cells (r1, c1) and (r2, c2)."""
     dr = abs(r1 - r2)
@@ -200,74 +179,126 @@ def _octile(r1, c1, r2, c2, resolution):
 
 
 @njit(cache=True, nogil=True)
-def _search(costs, width, height, start, goal, weights, resolution, astar,
-            g, parent, closed, touched, keys, heap, pos):  # fmt: skip
-    """A* (astar) or Dijkstra from start to goal with an indexed heap (decrease-key);
-    returns (found, cost, expanded, touched count). ``keys`` holds f per node."""
+def _search(costs, wp, start, goal, weights, resolution, hscale, width,
+            nodes, touched, heads, entry_node, entry_next):  # fmt: skip
+    """A* (f = g + hscale x octile; hscale 0 is Dijkstra) from start to goal over a
+    bucket queue; returns (found, cost, expanded, touched count, entry_node, entry_next).
+
+    ``costs`` is the padded grid (``wp`` columns, a LETHAL border). Bucket ``b`` holds
+    the entries of f in [b, b + 1) x ``width``, a LIFO list each, kept in the circular
+    ``heads`` (a power of two slots); a node's tag holds the bucket of its current f, so
+    an entry of another bucket is stale."""
     n_touched = 0
     if weights[costs[start]] == np.inf or weights[costs[goal]] == np.inf:
-        return False, 0.0, 0, n_touched
-    goal_r, goal_c = divmod(goal, width)
-    start_r, start_c = divmod(start, width)
-    hscale = 1.0 if astar else 0.0
-    g[start] = 0.0
-    keys[start] = hscale * _octile(start_r, start_c, goal_r, goal_c, resolution)
+        return False, 0.0, 0, n_touched, entry_node, entry_next
+    goal_r, goal_c = divmod(goal, wp)
+    start_r, start_c = divmod(start, wp)
+    inv = 1.0 / width
+    mask = heads.shape[0] - 1  # a power of two
+    tolerance = REOPEN_TOLERANCE * resolution
+    diag = resolution * SQRT2
+    heads[:] = -1
+    capacity = entry_node.shape[0]
+    top = 0  # entries ever used
+    free = -1  # recycled entries
+    nodes[start].g = 0.0
+    cur = np.int64(hscale * _octile(start_r, start_c, goal_r, goal_c, resolution) * inv)
+    first = cur  # tags hold buckets from here on
     touched[0] = start
     n_touched = 1
-    heap[0] = start
-    pos[start] = 0
+    entry_node[0] = start
+    entry_next[0] = -1
+    heads[cur & mask] = 0
+    top = 1
     size = 1
     expanded = 0
-    diag = resolution * SQRT2
+    slot = cur & mask
     while size > 0:
-        node = _pop(keys, heap, pos, size)
+        while heads[slot] == -1:
+            cur += 1
+            slot = (slot + 1) & mask
+        if cur * width >= nodes[goal].g:
+            break  # every entry left has f >= the goal's cost
+        e = heads[slot]
+        heads[slot] = entry_next[e]
+        entry_next[e] = free
+        free = e
         size -= 1
-        closed[node] = 1
-        expanded += 1
+        node = entry_node[e]
+        tag = nodes[node].tag
+        if tag & 3 == 1 or tag >> 2 != cur - first:
+            continue  # stale: expanded at this g already, or its f moved
+        if tag & 3 == 0:
+            expanded += 1
+        nodes[node].tag = (tag & ~3) | 1
         if node == goal:
-            return True, g[node], expanded, n_touched
-        row, col = divmod(node, width)
-        base = g[node]
-        for dr in range(-1, 2):
-            r = row + dr
-            if r < 0 or r >= height:
-                continue
-            for dc in range(-1, 2):
-                if dr == 0 and dc == 0:
+            continue
+        if top + 8 > capacity:  # room for this expansion's entries
+            capacity *= 2
+            grown = np.empty(capacity, np.int32)
+            grown[:top] = entry_node[:top]
+            entry_node = grown
+            grown = np.empty(capacity, np.int32)
+            grown[:top] = entry_next[:top]
+            entry_next = grown
+        row, col = divmod(node, wp)
+        base = nodes[node].g
+        w_east = weights[costs[node + 1]]
+        w_west = weights[costs[node - 1]]
+        w_south = weights[costs[node + wp]]
+        w_north = weights[costs[node - wp]]
+        for k in range(8):  # E, W, S, N, then the diagonals
+            dr = _ROW_STEPS[k]
+            dc = _COL_STEPS[k]
+            nb = node + dr * wp + dc
+            if k < 4:
+                w = w_east if k == 0 else (w_west if k == 1 else (w_south if k == 2 else w_north))
+                if w == np.inf:
                     continue
-                c = col + dc
-                if c < 0 or c >= width:
+                candidate = base + resolution * w
+            else:
+                # no cutting the corner of an impassable cell
+                if (w_east if dc == 1 else w_west) == np.inf:
                     continue
-                nb = node + dr * width + dc
-                if closed[nb]:
+                if (w_south if dr == 1 else w_north) == np.inf:
                     continue
                 w = weights[costs[nb]]
                 if w == np.inf:
                     continue
-                if dr != 0 and dc != 0:
-                    # no cutting the corner of an impassable cell
-                    if weights[costs[node + dc]] == np.inf:
-                        continue
-                    if weights[costs[node + dr * width]] == np.inf:
-                        continue
-                    step = diag
+                candidate = base + diag * w
+            old = nodes[nb].g
+            if candidate < old:
+                state = 0
+                if old == np.inf:
+                    touched[n_touched] = nb
+                    n_touched += 1
                 else:
-                    step = resolution
-                candidate = base + step * w
-                old = g[nb]
-                if candidate < old:
-                    g[nb] = candidate
-                    parent[nb] = node
-                    keys[nb] = candidate + hscale * _octile(r, c, goal_r, goal_c, resolution)
-                    if old == np.inf:  # first reached: a new heap entry
-                        touched[n_touched] = nb
-                        n_touched += 1
-                        heap[size] = nb
-                        size += 1
-                        _sift_up(keys, heap, pos, size - 1)
-                    else:  # already in the heap: decrease its key
-                        _sift_up(keys, heap, pos, pos[nb])
-    return False, 0.0, expanded, n_touched
+                    state = nodes[nb].tag & 3
+                    if state == 1:
+                        if candidate > old - tolerance:
+                            continue  # the same cost summed in another order: no reopening
+                        state = 2
+                nodes[nb].g = candidate
+                nodes[nb].parent = node
+                f = candidate + hscale * _octile(row + dr, col + dc, goal_r, goal_c, resolution)
+                b = np.int64(f * inv)
+                if b < cur:  # rounding only: h is consistent
+                    b = cur
+                nodes[nb].tag = ((b - first) << 2) | state
+                if free != -1:
+                    e = free
+                    free = entry_next[e]
+                else:
+                    e = top
+                    top += 1
+                entry_node[e] = nb
+                s = b & mask
+                entry_next[e] = heads[s]
+                heads[s] = e
+                size += 1
+    cost = nodes[goal].g
+    found = cost < np.inf
+    return found, cost if found else 0.0, expanded, n_touched, entry_node, entry_next
 
 
 @njit(cache=True, nogil=True)
@@ -287,14 +318,13 @@ def _trace_path(parent, start, goal):
 
 
 @njit(cache=True, nogil=True)
-def _reset(g, parent, closed, pos, touched, n):
+def _reset(nodes, touched, n):
     """Undo a search on the nodes it touched."""
     for i in range(n):
         node = touched[i]
-        g[node] = np.inf
-        parent[node] = -1
-        closed[node] = 0
-        pos[node] = -1
+        nodes[node].g = np.inf
+        nodes[node].tag = 0
+        nodes[node].parent = -1
 
 
 @njit(cache=True, nogil=True)

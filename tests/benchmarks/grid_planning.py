@@ -7,7 +7,19 @@ walls, rack rows, totes; 0.05 m cells) inflated with the Nav2 defaults. Printed:
 Dijkstra from (2.5, 2.5) to (97.5, 97.5) m (time [ms], nodes expanded, path length [m]);
 and, in the same run, networkx ``astar_path`` on a 300 x 300 crop of the same costmap
 (the same weights and octile heuristic) against ``GridPlanner`` on that crop, with the
-speed ratio. ``--json`` prints the figures as one JSON object last. Measures only.
+speed ratio.
+
+The peer: libtcod's C pathfinder (``tcod.path.Pathfinder`` over a ``CustomGraph``, A*
+with its octile heuristic at the free-cell cost, the ``bench`` extra) on the same
+2000 x 2000 costmap, corner to corner, and the speed ratio. Its costs are integers: a
+cell of cost c weighs 250 + 4 c (NavFn's 50 + 0.8 c, times 5), a straight step 408 and
+a diagonal one 577 (577 / 408 = sqrt(2) + 3.6e-6), so its path cost, converted to metres,
+is the planner's model up to that rounding of sqrt(2); impassable cells cost 0
+(blocked), and each diagonal edge carries a condition array that holds it where both
+cells beside it are passable, our corner rule. Both path costs are printed. Planning
+only is timed: tcod's graph and Pathfinder are built before the clock starts, since
+``GridPlanner`` keeps its buffers between plans too. ``--json`` prints the figures as
+one JSON object last. Measures only.
 """
 
 from __future__ import annotations
@@ -24,7 +36,7 @@ from mapserver.core.costvalues import LETHAL
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams, Inflator
 from planner.grid_reference import networkx_grid
-from planner.grid_search import GridPlanner
+from planner.grid_search import GridPlanner, cell_weights
 from tests.benchmarks.inflation import warehouse
 
 RES = 0.05
@@ -49,6 +61,42 @@ def free_cell_near(costs: np.ndarray, k: int) -> tuple[int, int]:
             if 0 <= r < costs.shape[0] and 0 <= c < costs.shape[1] and costs[r, c] == 0:
                 return r, c
     raise ValueError("no free cell on the diagonal")
+
+
+TCOD_STRAIGHT, TCOD_DIAGONAL = 408, 577  # 577 / 408 ~ sqrt(2)
+
+
+def tcod_planner(costs: np.ndarray, start: tuple[int, int], goal: tuple[int, int]):
+    """A function planning start -> goal (row, col) with libtcod: (path cost [m], cells)."""
+    import tcod.path
+
+    passable = np.isfinite(cell_weights(True)[costs])
+    cell_cost = np.where(passable, 250 + 4 * costs.astype(np.int32), 0).astype(np.int32)
+    graph = tcod.path.CustomGraph(costs.shape)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if (dr, dc) == (0, 0):
+                continue
+            if dr and dc:  # held only where neither orthogonal cell is impassable
+                beside = np.zeros_like(passable)
+                rows = slice(max(0, -dr), costs.shape[0] - max(0, dr))
+                cols = slice(max(0, -dc), costs.shape[1] - max(0, dc))
+                beside[rows, cols] = (
+                    np.roll(passable, -dr, 0)[rows, cols] & np.roll(passable, -dc, 1)[rows, cols]
+                )
+                graph.add_edge((dr, dc), TCOD_DIAGONAL, cost=cell_cost, condition=beside)
+            else:
+                graph.add_edge((dr, dc), TCOD_STRAIGHT, cost=cell_cost)
+    graph.set_heuristic(cardinal=250 * TCOD_STRAIGHT, diagonal=250 * TCOD_DIAGONAL)
+
+    def plan() -> tuple[float, np.ndarray]:
+        finder = tcod.path.Pathfinder(graph)
+        finder.add_root(start)
+        path = finder.path_to(goal)
+        cost = finder.distance[goal] * RES / (250 * TCOD_STRAIGHT)
+        return float(cost), path
+
+    return plan
 
 
 def best_of(runs: int, fn) -> tuple[float, object]:
@@ -76,6 +124,15 @@ def main() -> None:
         figures[f"{algorithm}_expanded"] = result.expanded
         print(f"{algorithm:8s} 2000 x 2000 corner to corner: {ms:7.1f} ms, "
               f"{result.expanded} expanded, path {result.length:.1f} m")  # fmt: skip
+    corner_a = (int(2.5 / RES), int(2.5 / RES))
+    corner_b = (int(97.5 / RES), int(97.5 / RES))
+    tcod_plan = tcod_planner(costs, corner_a, corner_b)
+    tcod_ms, (tcod_cost, _) = best_of(3, tcod_plan)
+    ours_full = planner.plan(costs, (2.5, 2.5), (97.5, 97.5))
+    figures.update(tcod_ms=tcod_ms, tcod_ratio=tcod_ms / figures["astar_ms"])
+    print(f"tcod Pathfinder A* 2000 x 2000 corner to corner: {tcod_ms:.1f} ms (cost "
+          f"{tcod_cost:.3f} m, ours {ours_full.cost:.3f} m): GridPlanner A* "
+          f"{tcod_ms / figures['astar_ms']:.1f}x faster")  # fmt: skip
     crop = np.ascontiguousarray(costs[40:340, 40:340])
     small = GridPlanner(GridGeometry(300, 300, RES))
     s_cell, g_cell = free_cell_near(crop, 10), free_cell_near(crop, 290)

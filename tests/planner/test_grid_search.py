@@ -115,3 +115,36 @@ def test_planning_from_an_impassable_start_finds_nothing():
     costs[0, 0] = LETHAL
     result = GridPlanner(GridGeometry(4, 4, 1.0)).plan(costs, (0.5, 0.5), (3.5, 3.5))
     assert not result.found and result.expanded == 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_larger_graded_grids_match_the_networkx_optimum(seed):
+    """Long paths over many graded costs: nodes of one bucket reach each other, so the
+    queue's reopening and its stopping rule are what keep the cost optimal."""
+    rng = np.random.default_rng(seed)
+    n = 48
+    costs = rng.choice(np.array([FREE, FREE, 3, 40, 128, 252, LETHAL], np.uint8), (n, n))
+    costs[rng.random((n, n)) < 0.5] = FREE
+    start, goal = (1, 2), (n - 2, n - 3)
+    costs[start] = costs[goal] = FREE
+    expected = reference_cost(costs, start, goal, True)
+    planner = GridPlanner(GridGeometry(n, n, RES))
+    for algorithm in ("astar", "dijkstra"):
+        result = planner.plan(costs, centre(*start), centre(*goal), algorithm)
+        if expected is None:
+            assert not result.found
+        else:
+            assert result.cost == pytest.approx(expected, rel=1e-9)
+
+
+def test_plans_are_deterministic_and_buffers_are_reset():
+    rng = np.random.default_rng(7)
+    costs = rng.choice(np.array([FREE, FREE, FREE, 90, LETHAL], np.uint8), (60, 60))
+    costs[2, 2] = costs[57, 57] = FREE
+    planner = GridPlanner(GridGeometry(60, 60, RES))
+    first = planner.plan(costs, centre(2, 2), centre(57, 57))
+    planner.plan(costs, centre(57, 57), centre(2, 2), "dijkstra")  # another search between
+    again = planner.plan(costs, centre(2, 2), centre(57, 57))
+    fresh = GridPlanner(GridGeometry(60, 60, RES)).plan(costs, centre(2, 2), centre(57, 57))
+    for other in (again, fresh):
+        assert (other.path, other.cost, other.expanded) == (first.path, first.cost, first.expanded)
