@@ -142,12 +142,11 @@ class BeliefGrid:
             )
         self._log_odds = np.full(geometry.size, self.sensor_model.l0, dtype=np.float32)
         self._last_observed = np.full(geometry.size, np.nan, dtype=np.float64)
-        self._marks = np.zeros(geometry.size, dtype=np.uint8)
-        self._touched = np.empty(geometry.size, dtype=np.int64)
+        self._marks = np.zeros(kernel.marks_size(geometry.size), dtype=np.uint8)
         self._fade_cache = np.empty((kernel.FADE_CACHE_SIZE, 3), dtype=np.float64)
         # The kernel's argument groups (the arrays are only ever updated in place).
         self._kernel_buffers = kernel.KernelBuffers(
-            self._log_odds, self._last_observed, self._marks, self._touched, self._fade_cache
+            self._log_odds, self._last_observed, self._marks, self._fade_cache
         )
         # Fixed argument types (an int origin or clamp would be a new signature to
         # compile): every grid runs the kernels ``load_fusion_kernels`` loads.
