@@ -19,6 +19,9 @@ The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et
 3. *Apply.* Each marked cell receives exactly one update (see ``apply_marks``) and its
    mark is reset, so the mark array is all zero between scans without a full clear.
 
+Marks only strengthen, so the order of marking changes nothing: one pass over the beams
+does steps 1, 2 and the fill, computing each beam's direction (cos, sin) once.
+
 Work is proportional to beam lengths (trace) plus the scan's bounding box (apply reads
 its marks eight at a time, in memory order); nothing is allocated per scan: ``marks``
 (uint8, one per cell) is owned by the caller and reused. Tracing keeps no list of the
@@ -157,43 +160,47 @@ def mark_scan(marks, grid, scan, ranges, box):
     nbeams = ranges.shape[0]
     sin_step = abs(math.sin(angle_increment))
     cos_step = math.cos(angle_increment)
-    # Step 1: endpoints of returns that land on the map.
+    fill = fill_margin > 0.0
+    prev_a = prev_cos = prev_sin = math.nan
+    # Steps 1 and 2 in one pass over the beams, with each beam's direction computed
+    # once; marks only strengthen, so the order of marking changes nothing.
     for i in range(nbeams):
         r = ranges[i]
-        if not (r >= range_min and r <= range_max):
-            continue
         a = sensor_yaw + angle_min + i * angle_increment
-        ex = sensor_x + r * math.cos(a)
-        ey = sensor_y + r * math.sin(a)
-        if not (ex >= xmin and ey >= ymin and ex < xmax and ey < ymax):  # NaN: off too
-            continue
-        c = int(math.floor((ex - origin_x) * inv_res))
-        rr = int(math.floor((ey - origin_y) * inv_res))
-        if c >= width or rr >= height:
-            continue
-        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c, rr)
-        marks[rr * width + c] = MARK_HIT
-    # Step 2: free cells along each beam, clipped to the map.
-    for i in range(nbeams):
-        r = ranges[i]
-        if r >= range_min and r <= range_max:
-            length = r
-            is_return = True
-        elif r > range_max:
-            if not clearing_range > 0.0:
-                continue  # no-return beams carry no evidence
+        traced = True
+        is_return = r >= range_min and r <= range_max
+        length = r
+        if not is_return:
             length = clearing_range
-            is_return = False
-        else:
-            continue  # invalid: NaN, negative, below range_min
+            # Invalid (NaN, negative, below range_min), or no-return beams without evidence.
+            traced = r > range_max and clearing_range > 0.0
+        cos_a = math.cos(a) if traced else math.nan
+        sin_a = math.sin(a) if traced else math.nan
+        if fill and i > 0:  # Step 2b: the free wedge between beams i - 1 and i
+            cmin, rmin, cmax, rmax = fill_between(
+                marks, width, height, origin_x, origin_y, resolution,
+                sensor_x, sensor_y, prev_a, prev_cos, prev_sin,
+                angle_increment, ranges[i - 1], r, range_min, range_max,
+                fill_margin, cmin, rmin, cmax, rmax,
+            )  # fmt: skip
+        prev_a, prev_cos, prev_sin = a, cos_a, sin_a
+        if not traced:
+            continue
+        ex = sensor_x + length * cos_a
+        ey = sensor_y + length * sin_a
+        # Step 1: the endpoint of a return that lands on the map.
+        if is_return and ex >= xmin and ey >= ymin and ex < xmax and ey < ymax:
+            c = int(math.floor((ex - origin_x) * inv_res))
+            rr = int(math.floor((ey - origin_y) * inv_res))
+            if c < width and rr < height:
+                cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c, rr)
+                marks[rr * width + c] = MARK_HIT
+        # Step 2: free cells along the beam, clipped to the map.
         cut = 0.0
         if is_return and glance_margin > 0.0:
             cut = glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, glance_margin)
             if not cut < r:
                 continue  # the whole beam glances along the surface it hit
-        a = sensor_yaw + angle_min + i * angle_increment
-        ex = sensor_x + length * math.cos(a)
-        ey = sensor_y + length * math.sin(a)
         if not (math.isfinite(ex) and math.isfinite(ey)):
             continue  # no direction (an infinite angle): the beam says nothing
         ok, t0, t1, c0, r0, c1, r1 = clipped_cells(
@@ -220,15 +227,6 @@ def mark_scan(marks, grid, scan, ranges, box):
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
-    # Step 2b: the free wedge between neighbouring returns, where beams are sparse.
-    if fill_margin > 0.0:
-        for i in range(nbeams - 1):
-            cmin, rmin, cmax, rmax = fill_between(
-                marks, width, height, origin_x, origin_y, resolution,
-                sensor_x, sensor_y, sensor_yaw + angle_min + i * angle_increment,
-                angle_increment, ranges[i], ranges[i + 1], range_min, range_max,
-                fill_margin, cmin, rmin, cmax, rmax,
-            )  # fmt: skip
     box[0] = cmin
     box[1] = rmin
     box[2] = cmax
@@ -306,10 +304,11 @@ _MAX_RANGE_STEP = 1.0 / math.tan(MIN_FILL_INCIDENCE)  # |r_a - r_b| per (range *
 @njit(cache=True, nogil=True)
 def fill_between(
     marks, width, height, origin_x, origin_y, resolution, sensor_x, sensor_y,
-    angle_a, angle_increment, range_a, range_b, range_min, range_max, fill_margin,
+    angle_a, cos_a, sin_a, angle_increment, range_a, range_b, range_min, range_max, fill_margin,
     cmin, rmin, cmax, rmax,
 ):  # fmt: skip
-    """Mark FREE the cells between beam a (at ``angle_a`` [rad]) and its neighbour b
+    """Mark FREE the cells between beam a (at ``angle_a`` [rad], of cosine ``cos_a`` and
+    sine ``sin_a``) and its neighbour b
     that neither beam crosses; returns the box (cmin, rmin, cmax, rmax) grown to hold them.
 
     Two neighbouring returns outline the surface between them: the segment joining
@@ -341,8 +340,8 @@ def fill_between(
     rays = min(MAX_FILL_RAYS, int(math.ceil(near * step / resolution)) - 1)
     angle_b = angle_a + angle_increment
     # Endpoint a and the segment a -> b, relative to the sensor [m].
-    ax = range_a * math.cos(angle_a)
-    ay = range_a * math.sin(angle_a)
+    ax = range_a * cos_a
+    ay = range_a * sin_a
     ex = range_b * math.cos(angle_b) - ax
     ey = range_b * math.sin(angle_b) - ay
     edge = math.sqrt(ex * ex + ey * ey)
