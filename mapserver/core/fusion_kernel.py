@@ -422,6 +422,8 @@ def apply_marks(buffers, box, grid, scan, model):
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
     words = marks.view(np.uint64)
+    ev_hit, ev_free, ev_nr = l_hit - l0, l_miss - l0, l_miss_no_return - l0
+    last_t, f_occupied, f_free = math.nan, 1.0, 1.0  # the fade factors of the last t
     n = 0
     for row in range(box[1], box[3] + 1):
         for w in range((row * width + box[0]) >> 3, ((row * width + box[2]) >> 3) + 1):
@@ -438,12 +440,7 @@ def apply_marks(buffers, box, grid, scan, model):
                 if policy == POLICY_BINARY:
                     log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
                 else:
-                    if mark == MARK_HIT:
-                        ev = l_hit - l0
-                    elif mark == MARK_FREE:
-                        ev = l_miss - l0
-                    else:
-                        ev = l_miss_no_return - l0
+                    ev = ev_hit if mark == MARK_HIT else (ev_free if mark == MARK_FREE else ev_nr)
                     if weighted:
                         r = idx // width  # a word's cell may be in another row
                         dxc = origin_x + (idx - r * width + 0.5) * resolution - sensor_x
@@ -453,16 +450,14 @@ def apply_marks(buffers, box, grid, scan, model):
                     if policy == POLICY_DECAY:
                         t = last_observed[idx]
                         if t < stamp:  # False for NaN (never observed): nothing to fade
-                            value = fade(
-                                value,
-                                l0,
-                                t,
-                                stamp,
-                                stamp_bits[idx],
-                                fade_cache,
-                                half_life_occupied,
-                                half_life_free,
-                            )
+                            if t != last_t:  # neighbours mostly share an earlier scan's
+                                f_occupied, f_free = fade_factors(
+                                    t, stamp, stamp_bits[idx], fade_cache,
+                                    half_life_occupied, half_life_free,
+                                )  # fmt: skip
+                                last_t = t
+                            dev = value - l0
+                            value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
                         value += ev
                         if value < clamp_min:
                             value = clamp_min
@@ -488,13 +483,23 @@ def fade(value, l0, t, stamp, t_bits, fade_cache, half_life_occupied, half_life_
     a direct-mapped cache keyed by t's bits: rows of (t, fade_occupied, fade_free). The
     caller resets column 0 to NaN whenever ``stamp`` changes.
     """
+    f_occupied, f_free = fade_factors(
+        t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free
+    )
+    dev = value - l0
+    return l0 + dev * (f_occupied if dev > 0.0 else f_free)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def fade_factors(t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free):
+    """(fade_occupied, fade_free): ``2 ** (-(stamp - t) / half_life)`` of either sign,
+    through the cache ``fade`` describes."""
     h = (t_bits ^ (t_bits >> 21) ^ (t_bits >> 42)) & (FADE_CACHE_SIZE - 1)
     if fade_cache[h, 0] != t:
         fade_cache[h, 0] = t
         fade_cache[h, 1] = 2.0 ** (-(stamp - t) / half_life_occupied)
         fade_cache[h, 2] = 2.0 ** (-(stamp - t) / half_life_free)
-    dev = value - l0
-    return l0 + dev * (fade_cache[h, 1] if dev > 0.0 else fade_cache[h, 2])
+    return fade_cache[h, 1], fade_cache[h, 2]
 
 
 @njit(cache=True, nogil=True)
