@@ -153,6 +153,7 @@ def run_map_build(args: argparse.Namespace) -> int:
     else:
         print(
             f"fused {stats.scans} scans ({stats.cells_updated} cell updates) in "
-            f"{stats.fusion_s:.3f} s; wrote {yaml_path}"
+            f"{stats.fusion_s:.3f} s = {stats.scans_per_s:.0f} scans/s (kernel load "
+            f"{stats.kernel_load_s:.3f} s apart); wrote {yaml_path}"
         )
     return 0

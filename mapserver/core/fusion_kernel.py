@@ -19,9 +19,15 @@ The update runs in two steps, as OctoMap's ``insertPointCloud`` does (Hornung et
 3. *Apply.* Each marked cell receives exactly one update (see ``apply_marks``) and its
    mark is reset, so the mark array is all zero between scans without a full clear.
 
-Work is proportional to beam lengths (trace) plus touched cells (apply); nothing is
-allocated per scan: ``marks`` (uint8, one per cell) and ``touched`` (int64, capacity one
-per cell) are owned by the caller and reused.
+Marks only strengthen, so the order of marking changes nothing: one pass over the beams
+does steps 1, 2 and the fill, computing each beam's direction (cos, sin) once.
+
+Work is proportional to beam lengths (trace) plus the scan's bounding box (apply reads
+its marks eight at a time, in memory order); nothing is allocated per scan: ``marks``
+(uint8, one per cell) is owned by the caller and reused. Tracing keeps no list of the
+cells it marked: each cell it crosses gets the stronger of its mark and the beam's,
+without a branch, and the apply step finds the marked cells again in the box, in the
+order their log-odds and stamps lie in memory.
 """
 
 from __future__ import annotations
@@ -62,14 +68,18 @@ class KernelModel(NamedTuple):
 
 class KernelBuffers(NamedTuple):
     """The arrays fusion updates, owned by the caller: log_odds (float32, one per cell, flat),
-    last_observed (float64 [s], NaN never), marks (uint8), touched (int64, capacity one per
-    cell), fade_cache (float64 (FADE_CACHE_SIZE, 3))."""
+    last_observed (float64 [s], NaN never), marks (uint8, one per cell, zero, padded to a
+    multiple of 8: ``marks_size``), fade_cache (float64 (FADE_CACHE_SIZE, 3))."""
 
     log_odds: np.ndarray
     last_observed: np.ndarray
     marks: np.ndarray
-    touched: np.ndarray
     fade_cache: np.ndarray
+
+
+def marks_size(cells: int) -> int:
+    """Length of the marks array for a grid of ``cells``: rounded up to whole 8-byte words."""
+    return -(-cells // 8) * 8
 
 
 SCAN_PARAMS = np.dtype(
@@ -103,27 +113,23 @@ POLICY_STICKY = 2
 
 
 @njit(cache=True, nogil=True)
-def _trace(marks, touched, n, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
+def _trace(marks, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
     """The line of cells from (c0, r0) to (c1, r1) (``traversal.line_start``); raise weaker
-    marks to ``mark``; returns the new n (a cell enters ``touched`` once, when first
-    marked). max_cells >= 0 stops after that many cells of the same line (a prefix of it)."""
+    marks to ``mark``. max_cells >= 0 stops after that many cells of the same line (a
+    prefix of it). No branch per cell: every cell is written, with the stronger mark."""
     idx, cells, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
     count = cells if include_last else cells - 1
     if max_cells >= 0 and max_cells < count:
         count = max_cells
     for _ in range(count):
-        if marks[idx] < mark:
-            if marks[idx] == MARK_NONE:
-                touched[n] = idx
-                n += 1
-            marks[idx] = mark
+        m = marks[idx]
+        marks[idx] = m if m > mark else mark
         idx, err = line_next(idx, err, major, minor, a, b)
-    return n
 
 
 @njit(cache=True, nogil=True)
-def mark_scan(marks, touched, grid, scan, ranges, box):
-    """Steps 1 and 2: mark the cells one scan observes; returns the number touched.
+def mark_scan(marks, grid, scan, ranges, box):
+    """Steps 1 and 2: mark the cells one scan observes.
 
     grid: ``KernelGrid``; scan: a ``SCAN_PARAMS`` record (the sensor pose, the beams'
     angles and range limits, and the three reaches below);
@@ -132,9 +138,8 @@ def mark_scan(marks, touched, grid, scan, ranges, box):
     fill between beams keeps from the surface two neighbouring returns outline (<= 0:
     no fill; see ``fill_between``); glance_margin: [m] how near, square to the surface
     it hit, a return clears (<= 0: up to its endpoint; see ``glance_cutoff``).
-    touched[:n] receives the flat
-    indices of the marked cells; box (int64[4]) receives their bounding box (col_min,
-    row_min, col_max, row_max), inclusive, or (0, 0, -1, -1) when no cell is touched.
+    box (int64[4]) receives a bounding box of the marked cells (col_min, row_min, col_max,
+    row_max), inclusive (empty, col_min > col_max, when no beam reached the map).
     """
     width, height = grid.width, grid.height
     origin_x, origin_y, resolution = grid.origin_x, grid.origin_y, grid.resolution
@@ -155,49 +160,47 @@ def mark_scan(marks, touched, grid, scan, ranges, box):
     nbeams = ranges.shape[0]
     sin_step = abs(math.sin(angle_increment))
     cos_step = math.cos(angle_increment)
-    n = 0
-    # Step 1: endpoints of returns that land on the map.
+    fill = fill_margin > 0.0
+    prev_a = prev_cos = prev_sin = math.nan
+    # Steps 1 and 2 in one pass over the beams, with each beam's direction computed
+    # once; marks only strengthen, so the order of marking changes nothing.
     for i in range(nbeams):
         r = ranges[i]
-        if not (r >= range_min and r <= range_max):
-            continue
         a = sensor_yaw + angle_min + i * angle_increment
-        ex = sensor_x + r * math.cos(a)
-        ey = sensor_y + r * math.sin(a)
-        if not (ex >= xmin and ey >= ymin and ex < xmax and ey < ymax):  # NaN: off too
-            continue
-        c = int(math.floor((ex - origin_x) * inv_res))
-        rr = int(math.floor((ey - origin_y) * inv_res))
-        if c >= width or rr >= height:
-            continue
-        cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c, rr)
-        idx = rr * width + c
-        if marks[idx] != MARK_HIT:
-            if marks[idx] == MARK_NONE:
-                touched[n] = idx
-                n += 1
-            marks[idx] = MARK_HIT
-    # Step 2: free cells along each beam, clipped to the map.
-    for i in range(nbeams):
-        r = ranges[i]
-        if r >= range_min and r <= range_max:
-            length = r
-            is_return = True
-        elif r > range_max:
-            if not clearing_range > 0.0:
-                continue  # no-return beams carry no evidence
+        traced = True
+        is_return = r >= range_min and r <= range_max
+        length = r
+        if not is_return:
             length = clearing_range
-            is_return = False
-        else:
-            continue  # invalid: NaN, negative, below range_min
+            # Invalid (NaN, negative, below range_min), or no-return beams without evidence.
+            traced = r > range_max and clearing_range > 0.0
+        cos_a = math.cos(a) if traced else math.nan
+        sin_a = math.sin(a) if traced else math.nan
+        if fill and i > 0:  # Step 2b: the free wedge between beams i - 1 and i
+            cmin, rmin, cmax, rmax = fill_between(
+                marks, width, height, origin_x, origin_y, resolution,
+                sensor_x, sensor_y, prev_a, prev_cos, prev_sin,
+                angle_increment, ranges[i - 1], r, range_min, range_max,
+                fill_margin, cmin, rmin, cmax, rmax,
+            )  # fmt: skip
+        prev_a, prev_cos, prev_sin = a, cos_a, sin_a
+        if not traced:
+            continue
+        ex = sensor_x + length * cos_a
+        ey = sensor_y + length * sin_a
+        # Step 1: the endpoint of a return that lands on the map.
+        if is_return and ex >= xmin and ey >= ymin and ex < xmax and ey < ymax:
+            c = int(math.floor((ex - origin_x) * inv_res))
+            rr = int(math.floor((ey - origin_y) * inv_res))
+            if c < width and rr < height:
+                cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c, rr)
+                marks[rr * width + c] = MARK_HIT
+        # Step 2: free cells along the beam, clipped to the map.
         cut = 0.0
         if is_return and glance_margin > 0.0:
             cut = glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, glance_margin)
             if not cut < r:
                 continue  # the whole beam glances along the surface it hit
-        a = sensor_yaw + angle_min + i * angle_increment
-        ex = sensor_x + length * math.cos(a)
-        ey = sensor_y + length * math.sin(a)
         if not (math.isfinite(ex) and math.isfinite(ey)):
             continue  # no direction (an infinite angle): the beam says nothing
         ok, t0, t1, c0, r0, c1, r1 = clipped_cells(
@@ -220,26 +223,14 @@ def mark_scan(marks, touched, grid, scan, ranges, box):
                 rc = cell_of(sensor_y + t_cut * dy, origin_y, inv_res, height)
                 major = abs(cc - c0) if abs(c1 - c0) >= abs(r1 - r0) else abs(rc - r0)
                 max_cells = major + 1
-        n = _trace(marks, touched, n, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
+        _trace(marks, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
-    # Step 2b: the free wedge between neighbouring returns, where beams are sparse.
-    if fill_margin > 0.0:
-        for i in range(nbeams - 1):
-            n, cmin, rmin, cmax, rmax = fill_between(
-                marks, touched, n, width, height, origin_x, origin_y, resolution,
-                sensor_x, sensor_y, sensor_yaw + angle_min + i * angle_increment,
-                angle_increment, ranges[i], ranges[i + 1], range_min, range_max,
-                fill_margin, cmin, rmin, cmax, rmax,
-            )  # fmt: skip
-    if n == 0:
-        cmin, rmin, cmax, rmax = 0, 0, -1, -1
     box[0] = cmin
     box[1] = rmin
     box[2] = cmax
     box[3] = rmax
-    return n
 
 
 GLANCE_CAP_CELLS = 10.0
@@ -312,12 +303,13 @@ _MAX_RANGE_STEP = 1.0 / math.tan(MIN_FILL_INCIDENCE)  # |r_a - r_b| per (range *
 
 @njit(cache=True, nogil=True)
 def fill_between(
-    marks, touched, n, width, height, origin_x, origin_y, resolution, sensor_x, sensor_y,
-    angle_a, angle_increment, range_a, range_b, range_min, range_max, fill_margin,
+    marks, width, height, origin_x, origin_y, resolution, sensor_x, sensor_y,
+    angle_a, cos_a, sin_a, angle_increment, range_a, range_b, range_min, range_max, fill_margin,
     cmin, rmin, cmax, rmax,
 ):  # fmt: skip
-    """Mark FREE the cells between beam a (at ``angle_a`` [rad]) and its neighbour b
-    that neither beam crosses; returns (n, cmin, rmin, cmax, rmax) updated.
+    """Mark FREE the cells between beam a (at ``angle_a`` [rad], of cosine ``cos_a`` and
+    sine ``sin_a``) and its neighbour b
+    that neither beam crosses; returns the box (cmin, rmin, cmax, rmax) grown to hold them.
 
     Two neighbouring returns outline the surface between them: the segment joining
     their endpoints. The wedge in front of it, between the two beams, is free space the
@@ -335,26 +327,26 @@ def fill_between(
     hold the corner that made it.
     """
     if not (range_a >= range_min and range_a <= range_max):
-        return n, cmin, rmin, cmax, rmax
+        return cmin, rmin, cmax, rmax
     if not (range_b >= range_min and range_b <= range_max):
-        return n, cmin, rmin, cmax, rmax
+        return cmin, rmin, cmax, rmax
     step = abs(angle_increment)
     start = resolution / step  # [m] where neighbouring beams are a cell apart
     near = min(range_a, range_b)
     if not near > start:
-        return n, cmin, rmin, cmax, rmax
+        return cmin, rmin, cmax, rmax
     if abs(range_a - range_b) > near * step * _MAX_RANGE_STEP:
-        return n, cmin, rmin, cmax, rmax  # an occlusion edge or a glancing face
+        return cmin, rmin, cmax, rmax  # an occlusion edge or a glancing face
     rays = min(MAX_FILL_RAYS, int(math.ceil(near * step / resolution)) - 1)
     angle_b = angle_a + angle_increment
     # Endpoint a and the segment a -> b, relative to the sensor [m].
-    ax = range_a * math.cos(angle_a)
-    ay = range_a * math.sin(angle_a)
+    ax = range_a * cos_a
+    ay = range_a * sin_a
     ex = range_b * math.cos(angle_b) - ax
     ey = range_b * math.sin(angle_b) - ay
     edge = math.sqrt(ex * ex + ey * ey)
     if not (edge > 0.0 and math.isfinite(edge)):
-        return n, cmin, rmin, cmax, rmax
+        return cmin, rmin, cmax, rmax
     for j in range(1, rays + 1):
         a = angle_a + angle_increment * j / (rays + 1)
         ux = math.cos(a)
@@ -376,10 +368,10 @@ def fill_between(
         )
         if not ok:
             continue
-        n = _trace(marks, touched, n, width, c0, r0, c1, r1, True, MARK_FREE)
+        _trace(marks, width, c0, r0, c1, r1, True, MARK_FREE)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
-    return n, cmin, rmin, cmax, rmax
+    return cmin, rmin, cmax, rmax
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -389,11 +381,16 @@ def _grow(cmin, rmin, cmax, rmax, c, r):
 
 
 @njit(cache=True, nogil=True)
-def apply_marks(buffers, n, grid, scan, model):
-    """Step 3: one update per marked cell in buffers.touched[:n]; resets their marks.
+def apply_marks(buffers, box, grid, scan, model):
+    """Step 3: one update per marked cell inside ``box`` (as ``mark_scan`` left it); resets
+    their marks; returns the number of cells updated.
 
     buffers: ``KernelBuffers``; grid: ``KernelGrid``; scan: the ``SCAN_PARAMS`` record
     (its pose, stamp and pose variances); model: ``KernelModel``.
+
+    The marks are read row by row, eight at a time (``marks`` is padded to a multiple of
+    8 cells), so the cells are updated in memory order, each once; no list of them is
+    kept while tracing.
 
     Update of cell c with evidence l (l_hit for HIT, l_miss for FREE, l_miss_no_return
     for NO_RETURN):
@@ -409,7 +406,7 @@ def apply_marks(buffers, n, grid, scan, model):
     fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``fade``), owned by the caller.
     """
     log_odds, last_observed = buffers.log_odds, buffers.last_observed
-    marks, touched, fade_cache = buffers.marks, buffers.touched, buffers.fade_cache
+    marks, fade_cache = buffers.marks, buffers.fade_cache
     width, origin_x, origin_y, resolution = (
         grid.width, grid.origin_x, grid.origin_y, grid.resolution
     )  # fmt: skip
@@ -424,48 +421,54 @@ def apply_marks(buffers, n, grid, scan, model):
     # Cells last observed by the same earlier scan share their stamp: cache fade factors.
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
-    for k in range(n):
-        idx = touched[k]
-        mark = marks[idx]
-        marks[idx] = MARK_NONE
-        if policy == POLICY_BINARY:
-            log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
-        else:
-            if mark == MARK_HIT:
-                ev = l_hit - l0
-            elif mark == MARK_FREE:
-                ev = l_miss - l0
-            else:
-                ev = l_miss_no_return - l0
-            if weighted:
-                row = idx // width
-                dxc = origin_x + (idx - row * width + 0.5) * resolution - sensor_x
-                dyc = origin_y + (row + 0.5) * resolution - sensor_y
-                ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
-            value = log_odds[idx]
-            if policy == POLICY_DECAY:
-                t = last_observed[idx]
-                if t < stamp:  # False for NaN (never observed): nothing to fade
-                    value = fade(
-                        value,
-                        l0,
-                        t,
-                        stamp,
-                        stamp_bits[idx],
-                        fade_cache,
-                        half_life_occupied,
-                        half_life_free,
-                    )
-                value += ev
-                if value < clamp_min:
-                    value = clamp_min
-                elif value > clamp_max:
-                    value = clamp_max
-            else:
-                value += ev
-            log_odds[idx] = value
-        if not (last_observed[idx] >= stamp):
-            last_observed[idx] = stamp
+    words = marks.view(np.uint64)
+    ev_hit, ev_free, ev_nr = l_hit - l0, l_miss - l0, l_miss_no_return - l0
+    last_t, f_occupied, f_free = math.nan, 1.0, 1.0  # the fade factors of the last t
+    n = 0
+    for row in range(box[1], box[3] + 1):
+        for w in range((row * width + box[0]) >> 3, ((row * width + box[2]) >> 3) + 1):
+            if words[w] == 0:
+                continue
+            # A word may reach into the row before or after: a cell there is marked
+            # only if it is in the box, and is updated here once (its mark reset).
+            for idx in range(w << 3, (w << 3) + 8):
+                mark = marks[idx]
+                if mark == MARK_NONE:
+                    continue
+                marks[idx] = MARK_NONE
+                n += 1
+                if policy == POLICY_BINARY:
+                    log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
+                else:
+                    ev = ev_hit if mark == MARK_HIT else (ev_free if mark == MARK_FREE else ev_nr)
+                    if weighted:
+                        r = idx // width  # a word's cell may be in another row
+                        dxc = origin_x + (idx - r * width + 0.5) * resolution - sensor_x
+                        dyc = origin_y + (r + 0.5) * resolution - sensor_y
+                        ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
+                    value = log_odds[idx]
+                    if policy == POLICY_DECAY:
+                        t = last_observed[idx]
+                        if t < stamp:  # False for NaN (never observed): nothing to fade
+                            if t != last_t:  # neighbours mostly share an earlier scan's
+                                f_occupied, f_free = fade_factors(
+                                    t, stamp, stamp_bits[idx], fade_cache,
+                                    half_life_occupied, half_life_free,
+                                )  # fmt: skip
+                                last_t = t
+                            dev = value - l0
+                            value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
+                        value += ev
+                        if value < clamp_min:
+                            value = clamp_min
+                        elif value > clamp_max:
+                            value = clamp_max
+                    else:
+                        value += ev
+                    log_odds[idx] = value
+                if not (last_observed[idx] >= stamp):
+                    last_observed[idx] = stamp
+    return n
 
 
 FADE_CACHE_SIZE = 1024
@@ -480,13 +483,23 @@ def fade(value, l0, t, stamp, t_bits, fade_cache, half_life_occupied, half_life_
     a direct-mapped cache keyed by t's bits: rows of (t, fade_occupied, fade_free). The
     caller resets column 0 to NaN whenever ``stamp`` changes.
     """
+    f_occupied, f_free = fade_factors(
+        t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free
+    )
+    dev = value - l0
+    return l0 + dev * (f_occupied if dev > 0.0 else f_free)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def fade_factors(t, stamp, t_bits, fade_cache, half_life_occupied, half_life_free):
+    """(fade_occupied, fade_free): ``2 ** (-(stamp - t) / half_life)`` of either sign,
+    through the cache ``fade`` describes."""
     h = (t_bits ^ (t_bits >> 21) ^ (t_bits >> 42)) & (FADE_CACHE_SIZE - 1)
     if fade_cache[h, 0] != t:
         fade_cache[h, 0] = t
         fade_cache[h, 1] = 2.0 ** (-(stamp - t) / half_life_occupied)
         fade_cache[h, 2] = 2.0 ** (-(stamp - t) / half_life_free)
-    dev = value - l0
-    return l0 + dev * (fade_cache[h, 1] if dev > 0.0 else fade_cache[h, 2])
+    return fade_cache[h, 1], fade_cache[h, 2]
 
 
 @njit(cache=True, nogil=True)
@@ -522,6 +535,9 @@ def fuse_batch(buffers, grid, model, ranges, offsets, scans, boxes, cells):
     for k in range(offsets.shape[0] - 1):
         scan = scans[k]
         beams = ranges[offsets[k] : offsets[k + 1]]
-        n = mark_scan(buffers.marks, buffers.touched, grid, scan, beams, boxes[k])
-        apply_marks(buffers, n, grid, scan, model)
+        box = boxes[k]
+        mark_scan(buffers.marks, grid, scan, beams, box)
+        n = apply_marks(buffers, box, grid, scan, model)
+        if n == 0:
+            box[0], box[1], box[2], box[3] = 0, 0, -1, -1
         cells[k] = n

@@ -107,9 +107,9 @@ def line_start(c0, r0, c1, r1, width):
 
 @njit(cache=True, nogil=True, inline="always")
 def line_next(idx, err, major, minor, a, b):
-    """The flat index of the line's next cell and the new error term."""
+    """The flat index of the line's next cell and the new error term (without a branch:
+    a minor step is taken where the error term goes negative, about every a / b cells,
+    a pattern branch prediction misses)."""
     err -= b
-    if err < 0:
-        idx += minor
-        err += a
-    return idx + major, err
+    step = err >> 63  # -1 when negative (int64, arithmetic shift), else 0
+    return idx + major + (minor & step), err + (a & step)

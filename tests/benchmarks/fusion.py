@@ -11,6 +11,10 @@ a warm-up scan has compiled (or loaded) the numba kernels. OctoMap (``pyoctomap`
 ``OcTree`` of the same resolution with the same hit/miss probabilities and clamping)
 inserts the same scans with ``insertPointCloud``, its fastest batch path.
 
+``--profile`` adds where fleetmap's time goes per scan: marking (endpoints, beam traces,
+the fill between beams; ``mark_scan``) against applying the updates (``apply_marks``), in
+one kernel call for all scans (no Python per scan), and the Python per ``fuse`` call.
+
 Printed: scans/s for both, fleetmap's cell updates/s (each cell a scan observes counted
 once), the speed ratio, and the agreement of the two maps: over the cells both
 observed, the share whose state (free below p 0.25, occupied above 0.65, unknown
@@ -41,8 +45,10 @@ from importlib.metadata import version
 
 import numpy as np
 import pyoctomap
+from numba import njit
 
 from fleet.boxworld import sample_scans, warehouse_layout
+from mapserver.core import fusion_kernel
 from mapserver.core.belief import BeliefGrid, CellState
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
@@ -74,6 +80,62 @@ def fuse(grid: BeliefGrid, scans: list[Scan]) -> Timing:
     for scan in scans:
         cells += grid.fuse(scan).cells
     return Timing(len(scans), time.perf_counter() - start, cells)
+
+
+@njit(cache=True)
+def _mark_only(buffers, grid, ranges, offsets, scans, boxes):
+    """``mark_scan`` per scan, its marks cleared (a memset per row of the box) unapplied."""
+    marks = buffers.marks
+    for k in range(offsets.shape[0] - 1):
+        box = boxes[k]
+        fusion_kernel.mark_scan(marks, grid, scans[k], ranges[offsets[k] : offsets[k + 1]], box)
+        for row in range(box[1], box[3] + 1):
+            marks[row * grid.width + box[0] : row * grid.width + box[2] + 1] = 0
+
+
+def profile(geometry: GridGeometry, model: SensorModel, scans: list[Scan], repeat: int) -> dict:
+    """[us per scan] the kernel's parts, fastest of ``repeat``: all scans in one call
+    (``fuse_batch``), marking alone, applying (their difference) and the Python of one
+    ``fuse`` call (the whole loop of ``fuse`` less the batch)."""
+    grid = BeliefGrid(geometry, model, policy=Policy.DECAY)
+    grid.fuse_many(scans[:1])  # the arguments as fuse_many builds them, captured below
+    captured = {}
+    real = fusion_kernel.fuse_batch
+
+    def capture(*args):
+        captured["args"] = args
+        return real(*args)
+
+    fusion_kernel.fuse_batch = capture
+    try:
+        grid.fuse_many(scans)
+    finally:
+        fusion_kernel.fuse_batch = real
+    buffers, kgrid, kmodel, ranges, offsets, params, boxes, cells = captured["args"]
+    _mark_only(buffers, kgrid, ranges, offsets[:2], params, boxes)  # compile, untimed
+    batch = mark = per_fuse = math.inf
+    for _ in range(repeat):
+        fresh = BeliefGrid(geometry, model, policy=Policy.DECAY)
+        b = fresh._kernel_buffers  # the benchmark drives the kernel itself
+        start = time.perf_counter()
+        real(b, kgrid, kmodel, ranges, offsets, params, boxes, cells)
+        batch = min(batch, time.perf_counter() - start)
+        start = time.perf_counter()
+        _mark_only(b, kgrid, ranges, offsets, params, boxes)
+        mark = min(mark, time.perf_counter() - start)
+        per_fuse = min(
+            per_fuse, fuse(BeliefGrid(geometry, model, policy=Policy.DECAY), scans).seconds
+        )
+    n = len(scans)
+    return {
+        "batch_us": 1e6 * batch / n,
+        "mark_us": 1e6 * mark / n,
+        "apply_us": 1e6 * (batch - mark) / n,
+        "python_per_fuse_us": 1e6 * (per_fuse - batch) / n,
+        "box_cells": float(
+            np.mean((boxes[:, 2] - boxes[:, 0] + 1) * (boxes[:, 3] - boxes[:, 1] + 1))
+        ),
+    }
 
 
 def octree(model: SensorModel) -> pyoctomap.OcTree:
@@ -171,7 +233,9 @@ def compare(grid: BeliefGrid, tree: pyoctomap.OcTree, stamp: float) -> dict:
     }
 
 
-def run(n_scans: int, n_octomap: int, seed: int, repeat: int = 1) -> dict:
+def run(
+    n_scans: int, n_octomap: int, seed: int, repeat: int = 1, with_profile: bool = False
+) -> dict:
     warehouse = warehouse_layout(WIDTH_M, HEIGHT_M, seed)
     scans = sample_scans(warehouse, n_scans, beams=BEAMS, range_max=RANGE_MAX, seed=seed)
     width, height = round(WIDTH_M / RESOLUTION), round(HEIGHT_M / RESOLUTION)
@@ -210,7 +274,9 @@ def run(n_scans: int, n_octomap: int, seed: int, repeat: int = 1) -> dict:
         fuse(grid, subset)
         agreement[name] = compare(grid, tree, stamp)
 
+    parts = profile(geometry, model, scans, repeat) if with_profile else None
     return {
+        "profile_us_per_scan": parts,
         "scans": ours.scans,
         "beams": BEAMS,
         "range_max_m": RANGE_MAX,
@@ -258,6 +324,13 @@ def report(r: dict) -> None:
         f"in {r['octomap_s']:.3f} s = {r['octomap_scans_per_s']:.1f} scans/s"
     )
     print(f"speed ratio (scans/s, fleetmap / OctoMap): {r['speed_ratio']:.1f}x")
+    if r["profile_us_per_scan"] is not None:
+        p = r["profile_us_per_scan"]
+        print(
+            f"profile [us/scan]: one batch {p['batch_us']:.0f} = mark {p['mark_us']:.0f} "
+            f"(endpoints, traces, fill) + apply {p['apply_us']:.0f} (box of "
+            f"{p['box_cells']:.0f} cells read); Python per fuse call {p['python_per_fuse_us']:.0f}"
+        )
     detail = r["agreement_detail"]
     d = detail["decay"]
     print(
@@ -295,6 +368,9 @@ def main(argv: list[str] | None = None) -> None:
         "--repeat", type=int, default=1, help="fleetmap runs, default and beams only in turn (1)"
     )
     parser.add_argument("--json", action="store_true", help="print the figures as JSON last")
+    parser.add_argument(
+        "--profile", action="store_true", help="also time the kernel's parts (mark, apply)"
+    )
     args = parser.parse_args(argv)
     if args.scans < 1:
         parser.error(f"--scans must be >= 1, got {args.scans}")
@@ -303,7 +379,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--octomap-scans must be in 1..{args.scans}, got {n_octomap}")
     if args.repeat < 1:
         parser.error(f"--repeat must be >= 1, got {args.repeat}")
-    result = run(args.scans, n_octomap, args.seed, args.repeat)
+    result = run(args.scans, n_octomap, args.seed, args.repeat, args.profile)
     report(result)
     if args.json:
         print(json.dumps(result))

@@ -4,12 +4,18 @@ import json
 import math
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 import yaml
 from conftest import make_scan
 
+import mapserver.store.offline as offline
+from mapserver.core import fusion_kernel
+from mapserver.core.belief import BeliefGrid, load_fusion_kernels
+from mapserver.core.geometry import GridGeometry
+from mapserver.core.sensor_model import SensorModel
 from mapserver.store.scanfile import write_scan_file
 from scenarios.cli.main import main
 
@@ -48,6 +54,32 @@ def test_map_build_writes_ros_map_files_and_prints_figures(scan_file, tmp_path, 
     logodds = np.load(out / "logodds.npy")
     assert logodds.dtype == np.float32 and logodds.shape == (3, 12)
     assert logodds[1, 5] > 2.0 and logodds[1, 0] < -1.0 and logodds[0, 0] == 0.0
+
+
+def test_the_kernel_load_is_timed_apart_from_the_fusion(scan_file, tmp_path, capsys, monkeypatch):
+    real = offline.load_fusion_kernels
+
+    def slow_load():  # a cold numba cache: seconds before the first scan fuses
+        time.sleep(0.3)
+        return real() + 0.3
+
+    monkeypatch.setattr(offline, "load_fusion_kernels", slow_load)
+    out = tmp_path / "map"
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["kernel_load_s"] >= 0.3
+    assert 0 < figures["fusion_s"] < 0.3  # three one-beam scans, the load excluded
+    assert figures["scans_per_s"] == pytest.approx(3 / figures["fusion_s"])
+
+
+def test_loaded_kernels_serve_every_grid_without_compiling_again():
+    load_fusion_kernels()
+    signatures = len(fusion_kernel.fuse_batch.signatures)
+    # Integers where floats are usual: still the one signature.
+    grid = BeliefGrid(GridGeometry(4, 3, 1, origin_x=0, origin_y=-1), SensorModel(clamp_min=-4))
+    grid.fuse(make_scan([2.0], y=0.5))
+    assert len(fusion_kernel.fuse_batch.signatures) == signatures
+    assert load_fusion_kernels() < 0.25  # loaded already: nothing to do but one tiny scan
 
 
 def test_the_policy_flag_selects_the_policy(scan_file, tmp_path):
