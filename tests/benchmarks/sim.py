@@ -1,6 +1,7 @@
 """Fleet simulator benchmark: sim steps and LiDAR rays per second against bare ray casting.
 
-Run: ``python tests/benchmarks/sim.py [--steps N] [--threads T] [--server-seconds S] [--json]``
+Run: ``python tests/benchmarks/sim.py [--steps N] [--threads T] [--server-seconds S]
+[--server-units 50 100] [--skip-bare] [--json]``
 
 The world is the default ``fleet.boxworld`` warehouse (100 m x 50 m, 107 walls, racks and
 pallets) in PyBullet. Units stand spread along the horizontal lanes, each driving along
@@ -19,10 +20,10 @@ every step.
    the faster bare casting [%], and the real-time factor (sim seconds per wall second)
    without a server.
 2. With the map server: ``fleetmap serve`` with its default settings (2000 x 1000 cells at
-   0.05 m, ``decay``, journal ``synchronous=FULL``) on 127.0.0.1 in a subprocess, and 50
-   units with 360 beams posting each step's scans as one batch (``ScanPoster``) for
-   ``--server-seconds`` of sim time, once waiting for each batch's acks and once with two
-   batches in flight (a worker thread posts while the sim runs on). Printed: the
+   0.05 m, ``decay``, journal ``synchronous=FULL``) on 127.0.0.1 in a subprocess, and
+   ``--server-units`` (50 and 100) units with 360 beams posting each step's scans as
+   one batch (``ScanPoster``, binary scans) for ``--server-seconds`` of sim time, once
+   waiting for each batch's acks and once with two batches in flight (a worker thread posts while the sim runs on). Printed: the
    real-time factor of each.
 
 ``--json`` prints every figure as one JSON object on the last line. Tests assert
@@ -156,8 +157,10 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def with_server(warehouse: Warehouse, sim_seconds: float, threads: int, in_flight: int) -> dict:
-    """50 units x 360 beams at 10 Hz posting to a real default map server."""
+def with_server(
+    warehouse: Warehouse, sim_seconds: float, threads: int, in_flight: int, units: int = 50
+) -> dict:
+    """``units`` x 360 beams at 10 Hz posting to a real default map server."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory() as data_dir:
@@ -176,7 +179,7 @@ def with_server(warehouse: Warehouse, sim_seconds: float, threads: int, in_fligh
                 if time.monotonic() > deadline or server.poll() is not None:
                     raise RuntimeError("the map server did not start")
                 time.sleep(0.2)
-            specs = unit_specs(warehouse, 50, 360)
+            specs = unit_specs(warehouse, units, 360)
             with (
                 httpx.Client(base_url=url, timeout=60) as http,
                 World(Layout.from_warehouse(warehouse), ray_threads=threads) as world,
@@ -198,7 +201,7 @@ def with_server(warehouse: Warehouse, sim_seconds: float, threads: int, in_fligh
             server.terminate()
             server.wait(timeout=30)
     return {
-        "units": 50,
+        "units": units,
         "beams": 360,
         "in_flight": in_flight,
         "sim_seconds": steps * DT,
@@ -214,6 +217,12 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     parser.add_argument("--steps", type=int, default=30, help="timed sim steps per case")
     parser.add_argument("--threads", type=int, default=1, help="rayTestBatch numThreads")
     parser.add_argument("--server-seconds", type=float, default=20.0, help="sim seconds")
+    parser.add_argument(
+        "--server-units", type=int, nargs="+", default=[50, 100], help="units with the server"
+    )
+    parser.add_argument(
+        "--skip-bare", action="store_true", help="only the runs with the server (part 2)"
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON object last")
     args = parser.parse_args(argv)
     warehouse = warehouse_layout()
@@ -221,7 +230,7 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     print(f"rayTestBatch numThreads={args.threads}, dt={DT} s, {args.steps} steps per case")
     print(f"{'units':>5} {'beams':>5} {'steps/s':>8} {'sim Mray/s':>10} "
           f"{'bare Mray/s (map, body)':>23} {'overhead':>8} {'x real time':>11}")  # fmt: skip
-    for units in (10, 50, 100):
+    for units in () if args.skip_bare else (10, 50, 100):
         for beams in (360, 1080):
             case = measure(warehouse, units, beams, args.steps, args.threads)
             cases.append(case)
@@ -233,12 +242,12 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
                 f"{case['overhead_pct']:7.1f}% {case['realtime_factor']:11.2f}"
             )
     served = []
-    for in_flight in (0, 2):
-        run = with_server(warehouse, args.server_seconds, args.threads, in_flight)
+    for units, in_flight in ((u, f) for u in args.server_units for f in (0, 2)):
+        run = with_server(warehouse, args.server_seconds, args.threads, in_flight, units)
         served.append(run)
         how = "waiting for each batch" if in_flight == 0 else f"{in_flight} batches in flight"
         print(
-            f"50 units x 360 beams at 10 Hz with the map server ({how}): "
+            f"{units} units x 360 beams at 10 Hz with the map server ({how}): "
             f"{run['sim_seconds']:.1f} sim s in {run['wall_seconds']:.2f} s wall = "
             f"{run['realtime_factor']:.2f}x real time ({run['scans_posted']} scans posted, "
             f"map version {run['map_version']})"
