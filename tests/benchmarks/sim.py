@@ -23,8 +23,8 @@ every step.
    0.05 m, ``decay``, journal ``synchronous=FULL``) on 127.0.0.1 in a subprocess, and
    ``--server-units`` (50 and 100) units with 360 beams posting each step's scans as
    one batch (``ScanPoster``, binary scans) for ``--server-seconds`` of sim time, once
-   waiting for each batch's acks and once with two batches in flight (a worker thread posts while the sim runs on). Printed: the
-   real-time factor of each.
+   waiting for each batch's acks and once with two batches in flight (a worker thread
+   posts while the sim runs on). Printed: the real-time factor of each.
 
 ``--json`` prints every figure as one JSON object on the last line. Tests assert
 behaviour; this script only measures.
