@@ -4,13 +4,16 @@ State: the belief grid, the layered costmap and the journal, under one lock.
 
 Writes. Scans are validated field by field by the caller (``Scan.from_dict``) and
 submitted; one ingest thread takes them in arrival order, and everything that arrived
-meanwhile is applied as one group (group commit): the state checks (``scan_gate``: a
-unit's stamps never go backwards, retries answered with their ack, the sensor on the map,
-the fleet clock's rule), one journal transaction (durable before any reply), fusion of
-each scan; then the submissions are answered. A rejected submission changes nothing.
+meanwhile is one group (group commit): the state checks (``scan_gate``: a unit's stamps
+never go backwards, retries answered with their ack, the sensor on the map, the fleet
+clock's rule) and one journal transaction (durable before any reply). A second thread
+fuses the journaled groups in the same order and then answers their submissions, so the
+journal write of one group (an fsync, without the GIL) overlaps the fusion of the one
+before (numba, without the GIL), and an ack's map version always includes its scan. A
+rejected submission changes nothing.
 The costmap follows the belief lazily: the boxes the scans touched are kept, and the
 costmap is brought up to the belief by the first read that needs it (so every read sees
-every acknowledged scan), or by the ingest thread once ``reads.costmap_refresh_s`` [s]
+every acknowledged scan), or by the fusion thread once ``reads.costmap_refresh_s`` [s]
 passed since the last refresh: a fleet's scans of the same places between two reads
 are composed and inflated once. The map's ``version`` is the journal ``seq`` of the last
 scan fused, so it increases with every accepted scan and is the same after a restart.
@@ -56,7 +59,7 @@ from mapserver.core.scan import Scan
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.service.fleet_clock import FleetClock
-from mapserver.service.scan_gate import Ack, IngestError, ScanGate, UnitLatest
+from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
 from mapserver.store.journal import Journal, JournalError, JournalRow, journal_path, journal_row
@@ -89,6 +92,23 @@ class _Submission:
     scans: list[Scan]
     future: Future
     rows: dict[int, JournalRow]  # id(scan) -> its journal row, encoded by the submitter
+
+
+@dataclass
+class _Journaled:
+    """A group past the gate and the journal, for the fusion thread: the accepted
+    submissions with their gate entries, the new scans in journal order, their acks."""
+
+    accepted: list[tuple[_Submission, list[UnitLatest]]]
+    new: list[Scan]
+    acks: list[Ack]
+
+
+def _fail(submissions: list[_Submission], exc: Exception) -> None:
+    """Answer every submission not answered yet with ``exc``."""
+    for sub in submissions:
+        if not sub.future.done():
+            sub.future.set_exception(exc)
 
 
 class MapService:
@@ -139,8 +159,11 @@ class MapService:
         self._dirty: list[CellBox] = []  # boxes fused since the costmap's last refresh
         self._costmap_refreshed = time.monotonic()
         self._closed = False
+        self._fuse_queue: queue.Queue[_Journaled | None] = queue.Queue()
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
+        self._fuser = threading.Thread(target=self._fuse_loop, name="map-fuse", daemon=True)
         self._worker.start()
+        self._fuser.start()
 
     # ---------------------------------------------------------------- lifecycle
     def _restore(self) -> None:
@@ -192,6 +215,7 @@ class MapService:
         self._closed = True
         self._queue.put(None)
         self._worker.join()
+        self._fuser.join()
         if self._snapshotter is not None:
             self._snapshotter.join()
         self.journal.close()
@@ -218,70 +242,100 @@ class MapService:
         return self.submit(scans).result()
 
     def _ingest_loop(self) -> None:
-        while True:
-            first = self._queue.get()
-            if first is None:
-                return
-            group = [first]
-            count = len(first.scans)
-            stop = False
-            while count < MAX_GROUP:
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                if item is None:
-                    stop = True
-                    break
-                group.append(item)
-                count += len(item.scans)
-            try:
-                self._apply_group(group)
-                self._snapshot_if_due()
-            except Exception as exc:  # a bug: answer 500 rather than leave callers waiting
-                logger.exception("ingest failed")
-                for sub in group:
-                    if not sub.future.done():
-                        sub.future.set_exception(exc)
-            if stop:
-                return
-
-    def _apply_group(self, group: list[_Submission]) -> None:
-        """State checks per submission (``scan_gate``), one journal transaction, fusion,
-        one costmap refresh; then every submission's future is answered."""
-        accepted: list[tuple[_Submission, list[UnitLatest]]] = []
-        acks: list[Ack] = []
-        with self._lock:
-            check = self.gate.open_group()
-            for sub in group:
-                outcome = check.admit(sub.scans)
-                if isinstance(outcome, IngestError):
-                    sub.future.set_exception(outcome)
-                    continue
-                accepted.append((sub, outcome))
-            if check.new:
-                try:
-                    rows = {k: v for sub, _ in accepted for k, v in sub.rows.items()}
-                    seqs = self.journal.append_rows([rows[id(scan)] for scan in check.new])
-                except Exception as exc:  # disk full, I/O error: nothing was fused
-                    check.abandon()
-                    for sub, _ in accepted:
-                        sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
+        """Stage 1 (thread ``map-ingest``): take what arrived as one group, check it and
+        journal it, and hand it to the fusion thread; on close, tell that thread to stop."""
+        try:
+            while True:
+                group, stop = self._next_group()
+                if group:
+                    try:
+                        journaled = self._admit_and_journal(group)
+                    except Exception as exc:  # a bug: answer 500, never leave callers waiting
+                        logger.exception("ingest failed")
+                        _fail(group, exc)
+                    else:
+                        if journaled is not None:
+                            self._fuse_queue.put(journaled)
+                if stop:
                     return
+        finally:
+            self._fuse_queue.put(None)
+
+    def _next_group(self) -> tuple[list[_Submission], bool]:
+        """The submissions waiting (at least one, at most MAX_GROUP scans) and whether
+        close() asked to stop after them."""
+        first = self._queue.get()
+        if first is None:
+            return [], True
+        group, count = [first], len(first.scans)
+        while count < MAX_GROUP:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if item is None:
+                return group, True
+            group.append(item)
+            count += len(item.scans)
+        return group, False
+
+    def _admit_and_journal(self, group: list[_Submission]) -> _Journaled | None:
+        """State checks per submission (``scan_gate``) and one journal transaction; the
+        gate then holds the group's acks, so the next group is checked against it while
+        this one fuses. None when the journal write failed (every submission answered
+        503, nothing changed)."""
+        accepted: list[tuple[_Submission, list[UnitLatest]]] = []
+        check = self.gate.open_group()
+        for sub in group:
+            outcome = check.admit(sub.scans)
+            if isinstance(outcome, IngestError):
+                sub.future.set_exception(outcome)
+                continue
+            accepted.append((sub, outcome))
+        acks: list[Ack] = []
+        if check.new:
+            try:
+                rows = {k: v for sub, _ in accepted for k, v in sub.rows.items()}
+                seqs = self.journal.append_rows([rows[id(scan)] for scan in check.new])
+            except Exception as exc:  # disk full, I/O error: nothing was journaled
+                check.abandon()
+                for sub, _ in accepted:
+                    sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
+                return None
+            acks = [Ack(seq, seqs[-1]) for seq in seqs]
+        check.commit(acks)
+        return _Journaled(accepted, check.new, acks)
+
+    def _fuse_loop(self) -> None:
+        """Stage 2 (thread ``map-fuse``): fuse each journaled group in order, then answer
+        its submissions, so an ack's map version always includes its scan."""
+        while True:
+            journaled = self._fuse_queue.get()
+            if journaled is None:
+                return
+            try:
+                self._fuse(journaled)
+                self._snapshot_if_due()
+            except Exception as exc:  # a bug: answer 500, never leave callers waiting
+                logger.exception("fusion failed")
+                _fail([sub for sub, _ in journaled.accepted], exc)
+
+    def _fuse(self, journaled: _Journaled) -> None:
+        """Fuse a journaled group's new scans (the costmap follows lazily) and answer it."""
+        if journaled.new:
+            with self._lock:
                 t0 = time.perf_counter()
-                results = self.belief.fuse_many(check.new)
-                self.version = seqs[-1]
+                results = self.belief.fuse_many(journaled.new)
+                self.version = journaled.acks[-1].map_version
                 self._dirty += [r.box for r in results]
                 if time.monotonic() - self._costmap_refreshed >= self._refresh_s:
                     self._costmap_current()
                 elif len(self._dirty) > MAX_DIRTY_BOXES:
                     self._dirty = merge_regions(self._dirty)
                 self.fusion_seconds += time.perf_counter() - t0
-                self._since_snapshot += len(seqs)
-                acks = [Ack(seq, self.version) for seq in seqs]
-            check.commit(acks)
-        for sub, entries in accepted:
-            sub.future.set_result(check.answers(entries, acks))
+                self._since_snapshot += len(journaled.new)
+        for sub, entries in journaled.accepted:
+            sub.future.set_result(GroupCheck.answers(entries, journaled.acks))
 
     def _costmap_current(self) -> None:
         """Bring the costmap up to the belief: the boxes fused since its last refresh,
