@@ -52,7 +52,6 @@ class ScanIngress:
             await self.app(scope, receive, send)
             return
         scope["route"] = self.routes[scope["path"]]
-        scope.setdefault("app", self.app)
         request = Request(scope, receive)
         try:
             reply = await handler(request)

@@ -269,12 +269,12 @@ class MapClient:
     def _scans_payload(self, scans: list[Scan | Mapping[str, Any]], batch: bool) -> Payload:
         """Scans as a body: binary (docs/scan-binary.md) when all are ``Scan`` objects and
         the client sends binary, else JSON (a mapping goes as given)."""
-        if self._binary and all(isinstance(scan, Scan) for scan in scans):
+        all_scans = all(isinstance(scan, Scan) for scan in scans)
+        if self._binary and all_scans:
             content = encode_batch(scans) if batch else encode_scan(scans[0])
             return content, BINARY_SCAN_TYPE
-        fast = all(isinstance(scan, Scan) for scan in scans)
-        bodies = [_scan_body(scan, plain=not fast) for scan in scans]
-        return _json_payload({"scans": bodies} if batch else bodies[0], fast)
+        bodies = [_scan_body(scan, plain=not all_scans) for scan in scans]
+        return _json_payload({"scans": bodies} if batch else bodies[0], all_scans)
 
     # -- map (2.2, 2.3)
 

@@ -62,7 +62,7 @@ from mapserver.service.fleet_clock import FleetClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
-from mapserver.store.journal import Journal, JournalError, JournalRow, journal_path, journal_row
+from mapserver.store.journal import Journal, JournalError, journal_path
 from mapserver.store.journal_reading import read_records
 from mapserver.store.snapshot_state import load_snapshot_into
 
@@ -91,7 +91,6 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     future: Future
-    rows: dict[int, JournalRow]  # id(scan) -> its journal row, encoded by the submitter
 
 
 @dataclass
@@ -229,12 +228,7 @@ class MapService:
         if self._closed:
             future.set_exception(IngestError(503, "the map server is shutting down"))
             return future
-        # Encoded here, on the submitter's thread (the event loop's, between requests),
-        # so that the one ingest thread only writes and fuses.
-        rows = {id(scan): journal_row(scan.journal_record()) for scan in scans}
-        for scan in scans:
-            scan.digest()  # computed once and kept: the gate compares it
-        self._queue.put(_Submission(scans, future, rows))
+        self._queue.put(_Submission(scans, future))
         return future
 
     def ingest(self, scans: list[Scan]) -> list[Ack]:
@@ -295,8 +289,7 @@ class MapService:
         acks: list[Ack] = []
         if check.new:
             try:
-                rows = {k: v for sub, _ in accepted for k, v in sub.rows.items()}
-                seqs = self.journal.append_rows([rows[id(scan)] for scan in check.new])
+                seqs = self.journal.append([scan.journal_record() for scan in check.new])
             except Exception as exc:  # disk full, I/O error: nothing was journaled
                 check.abandon()
                 for sub, _ in accepted:

@@ -152,25 +152,6 @@ _UPSERT_UNIT = (
 )
 
 
-JournalRow = tuple[str, float, str, bytes, bytes]
-"""A scan as the journal stores it: unit_id, stamp [s], header JSON, float64 ranges, checksum."""
-
-
-def journal_row(scan: Mapping[str, Any], index: int = 0) -> JournalRow:
-    """A scan object (``Journal.append``'s ``scans[index]``) encoded as its journal row."""
-    unit_id, stamp = _unit_and_stamp(scan, index)
-    header = {k: v for k, v in scan.items() if k != "ranges"}
-    ranges = np.asarray(scan.get("ranges", ()), dtype="<f8").tobytes()
-    body = json.dumps(header, separators=(",", ":"))
-    return (
-        unit_id,
-        stamp,
-        body,
-        ranges,
-        record_checksum(unit_id.encode(), stamp, body.encode(), ranges),
-    )
-
-
 class JournalError(FleetmapError, RuntimeError):
     """The journal file cannot be opened or used; the message names the path and why."""
 
@@ -411,15 +392,15 @@ class Journal:
         written or none: on any error nothing is journaled. What survives a crash once
         this returns is in the module docstring.
         """
-        return self.append_rows([journal_row(scan, i) for i, scan in enumerate(scans)])
-
-    def append_rows(self, rows: Sequence[JournalRow]) -> list[int]:
-        """``append`` for rows already encoded by ``journal_row`` (which a caller may do
-        on its own thread, leaving only the transaction to the writer)."""
         statements: list[tuple[str, Sequence[Any]]] = []
-        for row in rows:
-            statements.append((_INSERT_SCAN, row))
-            statements.append((_UPSERT_UNIT, (row[0], row[1])))
+        for i, scan in enumerate(scans):
+            unit_id, stamp = _unit_and_stamp(scan, i)
+            header = {k: v for k, v in scan.items() if k != "ranges"}
+            ranges = np.asarray(scan.get("ranges", ()), dtype="<f8").tobytes()
+            body = json.dumps(header, separators=(",", ":"))
+            checksum = record_checksum(unit_id.encode(), stamp, body.encode(), ranges)
+            statements.append((_INSERT_SCAN, (unit_id, stamp, body, ranges, checksum)))
+            statements.append((_UPSERT_UNIT, (unit_id, stamp)))
         if not statements:
             return []
         return [cursor.lastrowid for cursor in self._write(statements)[::2]]

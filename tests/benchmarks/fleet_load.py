@@ -94,7 +94,8 @@ async def scans(request):
     if request.headers.get("content-type") == CONTENT_TYPE:
         n = len(decode_scans(body, batch))
     else:
-        n = len(orjson.loads(body)["scans"]) if batch else (orjson.loads(body) and 1)
+        parsed = orjson.loads(body)
+        n = len(parsed["scans"]) if batch else 1
     acks = [{"seq": count + i + 1, "map_version": count + n} for i in range(n)]
     count += n
     return Response(orjson.dumps({"acks": acks} if batch else acks[0]),

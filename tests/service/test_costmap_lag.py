@@ -49,8 +49,8 @@ def test_a_lazy_costmap_reads_as_one_refreshed_after_every_scan(tmp_path):
         eager.close()
 
 
-def test_without_readers_the_ingest_thread_refreshes_once_the_lag_has_passed(tmp_path):
-    s = service(tmp_path, refresh_s=0.0)  # due at every group
+def test_with_no_lag_allowed_every_group_refreshes_the_costmap_without_a_reader(tmp_path):
+    s = service(tmp_path, refresh_s=0.0)
     try:
         for scan in scans(3):
             s.ingest([scan])
