@@ -18,7 +18,8 @@ from collections.abc import Iterable
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.patch import Patch
@@ -247,8 +248,21 @@ class UnitPose(_StrictModel):
 Point = Annotated[list[Finite], Field(min_length=2, max_length=2, description="[x, y] [m]")]
 
 
+Activity = Literal["moving", "waiting", "frozen", "broken_down", "dwelling", "idle"]
+"""What a unit is doing (``UnitState.activity``): driving or turning (``moving``),
+standing for traffic, a lane or node another unit holds (``waiting``), standing with no
+admissible path or lane (``frozen``), broken down (``broken_down``), at a stop of its
+trip (``dwelling``), or parked without a task (``idle``)."""
+ACTIVITIES: tuple[str, ...] = Activity.__args__
+
+
 class UnitState(_StrictModel):
-    """A unit as its fleet last published it (a project extension, for the viewer)."""
+    """A unit as its fleet last published it (a project extension, for the viewer).
+
+    ``activity`` is optional (older fleets do not send it). When it is sent without
+    ``frozen``, ``frozen`` follows from it; when both are sent they must agree: ``frozen``
+    is true exactly when ``activity`` is ``"frozen"``.
+    """
 
     unit_id: str = Field(min_length=1, max_length=MAX_UNIT_ID_CHARS)
     stamp: Finite = Field(description="[s] time of this state, as scan stamps")
@@ -262,6 +276,28 @@ class UnitState(_StrictModel):
     reason: str | None = Field(
         None, max_length=MAX_REASON_CHARS, description="why the unit is frozen or waits"
     )
+    activity: Activity | None = Field(
+        None,
+        description="what the unit is doing: moving, waiting (for traffic), frozen, "
+        "broken_down, dwelling (at a stop) or idle (no task); null when not reported",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _frozen_from_activity(cls, data: Any) -> Any:
+        """``frozen`` left out beside an ``activity``: it follows from the activity."""
+        if isinstance(data, dict) and "frozen" not in data and "activity" in data:
+            return {**data, "frozen": data["activity"] == "frozen"}
+        return data
+
+    @field_validator("activity")
+    @classmethod
+    def _activity_agrees_with_frozen(cls, activity: str | None, info: ValidationInfo):
+        frozen = info.data.get("frozen")
+        if activity is not None and isinstance(frozen, bool) and frozen != (activity == "frozen"):
+            message = "must be 'frozen' exactly when frozen is true (frozen is {frozen})"
+            raise PydanticCustomError("activity_frozen", message, {"frozen": str(frozen).lower()})
+        return activity
 
     @classmethod
     def of(
@@ -270,18 +306,24 @@ class UnitState(_StrictModel):
         stamp: float,
         pose: Any,
         path: Iterable[Iterable[float]] = (),
-        frozen: bool = False,
+        frozen: bool | None = None,
         reason: str | None = None,
+        activity: str | None = None,
     ) -> UnitState:
         """The state of a unit at ``pose`` (anything with ``x``, ``y`` [m] and ``yaw``
-        [rad], e.g. ``Pose2D``) with ``path`` as (x, y) pairs [m]; checked as on the wire."""
-        return cls(
-            unit_id=unit_id,
-            stamp=stamp,
-            pose=UnitPose(x=pose.x, y=pose.y, yaw=pose.yaw),
-            path=[list(point) for point in path],
-            frozen=frozen,
-            reason=reason,
+        [rad], e.g. ``Pose2D``) with ``path`` as (x, y) pairs [m]; checked as on the wire.
+        ``frozen`` None: ``activity == "frozen"``."""
+        fields: dict[str, Any] = {"reason": reason, "activity": activity}
+        if frozen is not None or activity is None:
+            fields["frozen"] = bool(frozen)
+        return cls.model_validate(
+            {
+                "unit_id": unit_id,
+                "stamp": stamp,
+                "pose": UnitPose(x=pose.x, y=pose.y, yaw=pose.yaw),
+                "path": [list(point) for point in path],
+                **fields,
+            }
         )
 
 

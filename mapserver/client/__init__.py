@@ -2,12 +2,14 @@
 
 The replies are the API's own models (``mapserver.api.schemas``), re-exported here:
 ``ScanAck``, ``MapMeta``, ``CostmapUpdates`` (of ``PatchOut``), ``CellOut``,
-``SegmentOut``, ``PlanOut``, ``UnitState`` (with ``UnitPose``); ``Grid`` holds a raw grid.
+``SegmentOut``, ``PlanOut``, ``UnitState`` (with ``UnitPose``; ``ACTIVITIES`` are the
+values of its ``activity``); ``Grid`` holds a raw grid.
 Importing it loads neither numba, PIL, sqlite3 nor fastapi
 (``tests/test_import_directions.py``).
 """
 
 from mapserver.api.schemas import (
+    ACTIVITIES,
     CellOut,
     CostmapUpdates,
     MapMeta,
@@ -33,6 +35,7 @@ from mapserver.client.map_client import (
 )
 
 __all__ = [
+    "ACTIVITIES",
     "CellOut",
     "Conflict",
     "CostmapUpdates",

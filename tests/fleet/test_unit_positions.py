@@ -10,7 +10,7 @@ from server_helpers import JSON, small_settings
 
 from mapserver.api.app import create_app
 from mapserver.api.unit_board import UnitBoard, UnitBoardError
-from mapserver.client import Forbidden, InvalidRequest, MapClient, UnitPose, UnitState
+from mapserver.client import ACTIVITIES, Forbidden, InvalidRequest, MapClient, UnitPose, UnitState
 from mapserver.core.scan import Pose2D
 
 UNIT, READER, ADMIN = "unit-secret", "reader-secret", "admin-secret"
@@ -33,6 +33,7 @@ def unit(unit_id="u1", stamp=1.0, **fields):
         "path": [[2.0, 3.0], [4.0, 3.0], [4.0, 6.5]],
         "frozen": False,
         "reason": None,
+        "activity": "moving",
     }
     body.update(fields)
     return body
@@ -52,7 +53,9 @@ def board(client):
 def test_the_latest_state_of_each_unit_is_kept_and_read_back_in_unit_order(client):
     first = client.post("/v1/units", json={"units": [unit("u2"), unit("u1")]}, headers=auth(UNIT))
     assert first.status_code == 200 and first.json() == {"accepted": 2, "tracked": 2}
-    frozen = unit("u2", stamp=2.0, path=[], frozen=True, reason="no path: aisle 3 blocked")
+    frozen = unit(
+        "u2", stamp=2.0, path=[], frozen=True, reason="no path: aisle 3 blocked", activity="frozen"
+    )
     assert client.post("/v1/units", json={"units": [frozen]}, headers=auth(ADMIN)).json() == {
         "accepted": 1,
         "tracked": 2,
@@ -74,6 +77,15 @@ BAD_POSTS = [
     ("twice in a post", {"units": [unit(), unit("u2"), unit()]}, 422, "units[2].unit_id"),
     ("older stamp", {"units": [unit("u3"), unit(stamp=0.5)]}, 409, "units[1].stamp"),
     ("long reason", {"units": [unit(reason="x" * 201)]}, 422, "units.0.reason"),
+    ("unknown activity", {"units": [unit(activity="flying")]}, 422, "units.0.activity"),
+    ("number activity", {"units": [unit(activity=1)]}, 422, "units.0.activity"),
+    ("frozen but moving", {"units": [unit(frozen=True)]}, 422, "units.0.activity"),
+    (
+        "frozen activity, frozen false",
+        {"units": [unit(activity="frozen")]},
+        422,
+        "units.0.activity",
+    ),
 ]
 
 
@@ -85,6 +97,39 @@ def test_a_bad_post_names_the_field_and_changes_nothing(client, name, body, stat
     assert reply.status_code == status, reply.text
     assert reply.json()["detail"].startswith(field), reply.json()
     assert board(client) == before
+
+
+def test_a_bad_activity_is_refused_naming_the_field_the_value_and_the_choices(client):
+    reply = client.post("/v1/units", json={"units": [unit(activity="flying")]}, headers=auth(UNIT))
+    assert reply.status_code == 422
+    assert reply.json()["detail"] == (
+        "units.0.activity: Input should be 'moving', 'waiting', 'frozen', 'broken_down', "
+        "'dwelling' or 'idle', got 'flying'"
+    )
+    clash = client.post("/v1/units", json={"units": [unit(frozen=True)]}, headers=auth(UNIT))
+    assert clash.json()["detail"] == (
+        "units.0.activity: must be 'frozen' exactly when frozen is true (frozen is true), "
+        "got 'moving'"
+    )
+
+
+@pytest.mark.parametrize("activity", ACTIVITIES)
+def test_each_activity_is_kept_and_frozen_follows_from_it_when_left_out(client, activity):
+    body = unit(activity=activity)
+    del body["frozen"]
+    assert client.post("/v1/units", json={"units": [body]}, headers=auth(UNIT)).status_code == 200
+    assert board(client) == [{**body, "frozen": activity == "frozen"}]
+
+
+def test_an_older_fleet_that_sends_no_activity_still_publishes(client):
+    old = unit(frozen=True, reason="no lane to (1.00, 2.00)")
+    del old["activity"]
+    assert client.post("/v1/units", json={"units": [old]}, headers=auth(UNIT)).status_code == 200
+    assert board(client) == [{**old, "activity": None}]
+    schema = client.get("/openapi.json").json()["components"]["schemas"]["UnitState"]
+    assert "activity" not in schema["required"]
+    choices = schema["properties"]["activity"]["anyOf"]
+    assert choices == [{"enum": list(ACTIVITIES), "type": "string"}, {"type": "null"}]
 
 
 def test_malformed_json_is_a_400_and_an_oversized_body_a_413(tmp_path):
@@ -136,8 +181,16 @@ def test_map_client_publishes_and_reads_typed_unit_states(client):
     states = [
         UnitState.of("u1", 1.0, Pose2D(2.0, 3.0, 0.5), ((2.0, 3.0), (4.0, 3.0))),
         UnitState.of("u2", 1.5, Pose2D(8.0, 1.0, -1.0), frozen=True, reason="lane a3 blocked"),
+        UnitState.of("u3", 1.5, Pose2D(5.0, 1.0, 0.0), activity="frozen", reason="no path"),
+        UnitState.of("u4", 1.5, Pose2D(6.0, 1.0, 0.0), activity="dwelling"),
     ]
-    assert MapClient(client, token=UNIT).publish_units(states) == 2
+    assert [(s.frozen, s.activity) for s in states] == [
+        (False, None),
+        (True, None),
+        (True, "frozen"),
+        (False, "dwelling"),
+    ]
+    assert MapClient(client, token=UNIT).publish_units(states) == 4
     assert MapClient(client, token=READER).units() == states
     assert MapClient(client, token=UNIT).publish_units([]) == 0
 
@@ -149,6 +202,8 @@ def test_map_client_raises_the_servers_refusals_and_checks_fields_locally(client
     # the wire model checks a state where it is made ...
     with pytest.raises(ValueError, match=r"stamp\n  Input should be a finite number"):
         UnitState.of("u1", math.nan, Pose2D(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"activity\n  must be 'frozen' exactly when frozen"):
+        UnitState.of("u1", 1.0, Pose2D(0.0, 0.0, 0.0), frozen=True, activity="waiting")
     with pytest.raises(ValueError, match=r"path\.1\n  List should have at least 2 items"):
         UnitState.of("u1", 1.0, Pose2D(0.0, 0.0, 0.0), ((1, 2), (3,)))
     # ... and the server checks it again: one left unchecked is refused, naming the field
