@@ -12,6 +12,9 @@ stands still is reported (``AgentState``), so freezes can be told from traffic:
   freeze);
 - waiting for a lane or node another unit holds: traffic, not a freeze;
 - dwelling at a stop, broken down, or without a task: not a freeze.
+
+``activity`` names what a unit does in a tick in the words of the map server's unit
+states (``mapserver.api.schemas.Activity``), for the live viewer.
 """
 
 from __future__ import annotations
@@ -158,6 +161,22 @@ class TaskAgent:
     def last_plan_made(self) -> float:
         """[s] when the navigator last planned."""
         return self._last_plan
+
+
+def activity(now: float, agent: TaskAgent, state: AgentState) -> str:
+    """What the unit of ``agent`` does at ``now`` [s], its ``state`` this tick: broken
+    down (``broken_down``) beats dwelling at a stop (``dwelling``), which beats standing
+    with no admissible path or lane (``frozen``); else ``moving`` when its command drives
+    or turns it, ``waiting`` (for traffic) when it stands with a task, ``idle`` without."""
+    if now < agent.broken_until:
+        return "broken_down"
+    if agent.dwell_until is not None and now < agent.dwell_until:
+        return "dwelling"
+    if state.blocked_reason is not None:
+        return "frozen"
+    if state.command.kind in ("follow", "rotate"):
+        return "moving"
+    return "waiting" if state.has_task else "idle"
 
 
 def _fmt(point: Point | None) -> str:

@@ -18,9 +18,11 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from mapserver.api.schemas import MAX_REASON_CHARS
 from mapserver.client import UnitState
 from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
 from scenarios.replay.objects import ObjectRecorder
+from scenarios.run.agents import activity
 from scenarios.run.record import GridSample, PlanSample, ScanSample, UnitSample
 from scenarios.score.map_truth import footprints, measure, reachable_floor
 from scenarios.score.throughput import ThroughputTracker
@@ -215,18 +217,24 @@ class UnitRecorder(_Observer):
 
 
 class UnitPublisher(_Observer):
-    """The units, their plans and freezes in the map server's live viewer."""
+    """The units, their plans, activities (``scenarios.run.agents.activity``) and the
+    reasons of their freezes in the map server's live viewer."""
 
     def __init__(self, every_s: float) -> None:
         self.every_s = every_s
 
     def observe(self, episode: Episode) -> None:
-        now, frozen = episode.report.now, episode.report.frozen
+        now = episode.report.now
         states = []
         for uid, unit in episode.sim.units.items():
-            plan = episode.agents[uid].navigator.last_plan
+            agent, state = episode.agents[uid], episode.report.states[uid]
+            plan = agent.navigator.last_plan
             path = plan.path if plan is not None and plan.found else ()
-            states.append(UnitState.of(uid, now, unit.drive.pose, path, uid in frozen))
+            doing = activity(now, agent, state)
+            reason = state.blocked_reason[:MAX_REASON_CHARS] if doing == "frozen" else None
+            states.append(
+                UnitState.of(uid, now, unit.drive.pose, path, reason=reason, activity=doing)
+            )
         episode.client.publish_units(states)
 
 

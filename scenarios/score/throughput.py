@@ -45,7 +45,7 @@ import networkx as nx
 from fleet.shapes import wrap_angle
 from fleet.unit import DriveLimits, corner_speed
 from planner.lane_graph import LaneGraph
-from scenarios.run.agents import AgentState
+from scenarios.run.agents import AgentState, activity
 from scenarios.run.record import TripRecord
 from scenarios.spec.tasks import Task
 
@@ -56,6 +56,8 @@ AT_NODE_M = 0.1
 coordinator's default ``arrive_tol``)."""
 WAIT_CAUSES = ("traffic", "freeze", "dwell", "breakdown", "turn")
 """The keys of ``wait_s``; ``turn`` is one beyond the four of docs/files.md."""
+STANDING_CAUSES = {"broken_down": "breakdown", "dwelling": "dwell", "frozen": "freeze"}
+"""The wait cause of each ``activity`` that is one (``scenarios.run.agents.activity``)."""
 
 
 class Agent(Protocol):
@@ -169,12 +171,9 @@ def ideal_trip_s(
 
 def standing_cause(now: float, agent: Agent, state: AgentState, drive: Drive) -> str:
     """Why a unit with a task stands still at ``now`` [s] (one of ``WAIT_CAUSES``)."""
-    if now < agent.broken_until:
-        return "breakdown"
-    if agent.dwell_until is not None and now < agent.dwell_until:
-        return "dwell"
-    if state.blocked_reason is not None:
-        return "freeze"
+    cause = STANDING_CAUSES.get(activity(now, agent, state))
+    if cause is not None:
+        return cause
     if abs(drive.turn_rate) > 0:
         return "turn"
     return "traffic"
