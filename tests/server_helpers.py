@@ -54,12 +54,16 @@ def scan_body(stamp: float = 1.0, unit: str = "u1", x: float = 5.0, y: float = 5
 
 class ServerProcess(EmbeddedServer):
     """``fleetmap serve`` in a subprocess on 127.0.0.1 (``scenarios.run.embedded_server``);
-    its grid is ``grid`` cells at 0.1 m (default 30 m x 20 m)."""
+    its grid is ``grid`` cells at 0.1 m (default 30 m x 20 m); ``port`` None: a free one."""
 
     def __init__(
-        self, data_dir: Path, config: Path | None = None, grid: tuple[int, int] = (300, 200)
+        self,
+        data_dir: Path,
+        config: Path | None = None,
+        grid: tuple[int, int] = (300, 200),
+        port: int | None = None,
     ) -> None:
         settings = {"grid": {"width": grid[0], "height": grid[1], "resolution": 0.1}}
         if config is not None:
             settings.update(yaml.safe_load(config.read_text()) or {})
-        super().__init__(data_dir, settings)
+        super().__init__(data_dir, settings, port=port)

@@ -28,7 +28,8 @@ def free_port() -> int:
 
 class EmbeddedServer:
     """``fleetmap serve`` on 127.0.0.1 with ``settings`` (a dict of server settings,
-    written to a YAML config) on ``data_dir``. Ready when constructed."""
+    written to a YAML config) on ``data_dir``, on ``port`` (None: a free one). Ready when
+    constructed."""
 
     def __init__(
         self,
@@ -36,8 +37,9 @@ class EmbeddedServer:
         settings: dict[str, Any] | None = None,
         env: dict[str, str] | None = None,
         ready_timeout: float = 60.0,
+        port: int | None = None,
     ) -> None:
-        self.port = free_port()
+        self.port = free_port() if port is None else port
         self.url = f"http://127.0.0.1:{self.port}"
         self.data_dir = data_dir = Path(data_dir)
         data_dir.mkdir(parents=True, exist_ok=True)

@@ -8,6 +8,7 @@ with the palette the server's PNG replies use.
 
 import json
 import os
+import re
 
 import httpx
 import numpy as np
@@ -122,7 +123,9 @@ def test_a_new_scan_appears_without_a_reload(page, server):
 
 def test_units_are_drawn_with_their_paths_and_frozen_units_are_marked(page, server):
     states = [
-        UnitState.of("u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05))),
+        UnitState.of(
+            "u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05)), activity="moving"
+        ),
         UnitState.of(
             "u7", 4.0, Pose2D(25.05, 5.05, 1.0), frozen=True, reason="no path: aisle blocked"
         ),
@@ -136,6 +139,73 @@ def test_units_are_drawn_with_their_paths_and_frozen_units_are_marked(page, serv
     assert near(pixel(page, (30, 150)), colours["unit"])  # u1's centre
     on_path = [pixel(page, (col, 150)) for col in range(60, 90)]  # along u1's dashed path
     assert any(near(p, colours["path"]) for p in on_path)
+
+
+STATE_UNITS = [  # (unit, activity, where [m]): a column at x = 15.05, 3 m apart
+    ("u10", "broken_down", (15.05, 2.05)),
+    ("u2", "waiting", (15.05, 5.05)),
+    ("u11", "idle", (15.05, 8.05)),
+    ("u3", "dwelling", (15.05, 11.05)),
+    ("u20", None, (15.05, 17.05)),  # a fleet that posts no activity
+]
+STATE_WORDS = {
+    "moving": "moving",
+    "waiting": "waiting for traffic",
+    "frozen": "frozen",
+    "broken_down": "broken down",
+    "dwelling": "dwelling at a stop",
+    "idle": "idle (no task)",
+}
+LIST_UNITS = """[...document.querySelectorAll('#units li')]
+    .map(li => [li.dataset.unit, li.querySelector('.state').textContent])"""
+LEGEND_STATES = """[...document.querySelectorAll('#legend li.state')]
+    .map(li => [li.dataset.state, li.textContent])"""
+
+
+def test_units_are_listed_in_natural_order_with_their_state_in_words_look_and_legend(page, server):
+    states = [
+        UnitState.of(uid, 5.0, Pose2D(x, y, 0.0), activity=activity)
+        for uid, activity, (x, y) in STATE_UNITS
+    ]
+    MapClient(server[1], token=UNIT).publish_units(states)
+    page.wait_for("document.querySelectorAll('#units li').length === 7")
+    assert page.evaluate(LIST_UNITS) == [
+        ["u1", "moving"],  # from the test before, at (3.05, 15.05)
+        ["u2", "waiting for traffic"],
+        ["u3", "dwelling at a stop"],
+        ["u7", "frozen"],  # frozen: true, no activity
+        ["u10", "broken down"],
+        ["u11", "idle (no task)"],
+        ["u20", "state not posted"],
+    ]
+    assert page.evaluate(LEGEND_STATES) == [
+        *([key, words] for key, words in STATE_WORDS.items()),
+        ["unreported", "state not posted"],
+    ]
+    looks = page.evaluate("fleetmapViewer.states")
+    assert {key: look["words"] for key, look in looks.items()} == STATE_WORDS
+    assert looks["frozen"]["colour"] == [229, 72, 77]  # frozen stays red
+    assert len({tuple(look["colour"]) for look in looks.values()}) == 6
+    assert len({look["shape"] for look in looks.values()}) == 5  # idle: a grey disc
+    drawn = {  # one cell above each centre: inside every marker, off the broken-down cross
+        "moving": pixel(page, (30, 151)),
+        "frozen": pixel(page, (250, 51)),
+        **{
+            activity or "unreported": pixel(page, (150, round(y * 10) + 1))
+            for _, activity, (_, y) in STATE_UNITS
+        },
+    }
+    for key, colour in drawn.items():
+        expected = looks[key]["colour"] if key in looks else [100, 116, 139]
+        assert near(colour, expected), (key, colour)
+    # the comparator itself: digit runs as numbers, then code units for a total order
+    ids = ["u10", "u2", "u1", "a", "u02", "U1", "u1b", "u100"]
+    ordered = page.evaluate(
+        f"{json.dumps(ids)}.map(id => ({{unit_id: id}})).sort(fleetmapViewer.byUnitId)"
+        ".map(u => u.unit_id)"
+    )
+    assert ordered == ["a", "u1", "U1", "u1b", "u02", "u2", "u10", "u100"]
+    assert page.console_errors() == []
 
 
 def test_the_occupancy_and_age_views_show_the_servers_values(page, server):
@@ -169,3 +239,44 @@ def test_without_a_token_the_page_asks_for_one_and_sends_it(page, server):
     page.evaluate("fleetmapViewer.ready.then(() => true)")
     assert page.evaluate("sessionStorage.getItem('fleetmap.token')") == READER
     assert pixel(page, LETHAL_CELL) == rgba(cost_palette(), LETHAL)
+
+
+GONE = re.compile(
+    r"The map server at (http://127\.0\.0\.1:\d+/) is not answering since "
+    r"\d\d:\d\d:\d\d; retrying"
+)
+BANNER = "document.querySelector('#banner')"
+
+
+def test_the_page_says_when_its_server_is_gone_and_resumes_when_it_is_back(page, server, tmp_path):
+    """Its own open server, stopped and started again on the same port and data dir."""
+    first = ServerProcess(tmp_path / "data")
+    second = None
+    try:
+        with httpx.Client(base_url=first.url) as http:
+            MapClient(http).post_scan(scan_body(stamp=1.0))
+        page.open(f"{first.url}/")
+        page.evaluate("fleetmapViewer.ready.then(() => true)")
+        assert page.wait_for("fleetmapViewer.version === 1")
+        assert page.evaluate(f"{BANNER}.hidden") is True
+        first.stop()
+        text = page.wait_for(f"!{BANNER}.hidden && {BANNER}.textContent", timeout=20)
+        assert GONE.fullmatch(text) and GONE.fullmatch(text).group(1) == f"{first.url}/"
+        assert page.evaluate("fleetmapViewer.serverGone") is True
+        assert page.evaluate("document.querySelector('#stage').classList.contains('stale')")
+        note = page.evaluate("document.querySelector('#stale-note').textContent")
+        assert note.startswith("stale: the last map received at ") and "(version 1," in note
+        assert pixel(page, LETHAL_CELL) == rgba(cost_palette(), LETHAL)  # the map stays
+        second = ServerProcess(tmp_path / "data", port=first.port)
+        with httpx.Client(base_url=second.url) as http:
+            MapClient(http).post_scan(scan_body(stamp=2.0))
+        assert page.wait_for(f"{BANNER}.hidden && fleetmapViewer.version === 2", timeout=20)
+        assert page.evaluate("fleetmapViewer.serverGone") is False
+        assert not page.evaluate("document.querySelector('#stage').classList.contains('stale')")
+        assert page.evaluate("document.querySelector('#stale-note').hidden") is True
+    finally:
+        for process in (first, second):
+            if process is not None:
+                process.stop()
+        page.open(f"{server[0].url}/#token={READER}")
+        page.evaluate("fleetmapViewer.ready.then(() => true)")

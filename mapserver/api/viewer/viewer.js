@@ -1,12 +1,16 @@
 /* fleetmap live viewer: plain JavaScript, no build step.
  *
  * Draws the shared map on a canvas in one of three views (costmap, occupancy
- * probability, evidence age), the units with their planned paths (frozen units marked),
- * a legend and the map's metadata. The costmap is followed through
+ * probability, evidence age), the units with their planned paths, each unit in the look
+ * of what it is doing (its posted activity: STATES), a legend and the map's metadata.
+ * Units are listed and drawn in natural order of their ids (u2 before u10: byUnitId). The costmap is followed through
  * GET v1/costmap/updates?since=V patches; a full raw read happens only at start and when
  * the server answers {"full": true}. The occupancy and age views have no patch stream:
  * while one of them is shown it is read whole when the map's version has changed (at
  * most once per GRID_REFRESH_MS). Units come from GET v1/units, polled.
+ * When the server stops answering (network errors, timeouts or non-2xx replies other than
+ * 401/403) for GONE_AFTER_MS, a banner says so and the last map stays, marked stale;
+ * the first answer again removes both.
  *
  * Grids: row-major, row 0 at the origin's y (the bottom row); the canvas shows +y up.
  * Auth: with tokens configured the API needs a reader token, taken from the URL fragment
@@ -21,17 +25,46 @@
   const POLL_MS = 500; // costmap updates poll period [ms]
   const UNITS_MS = 1000; // units poll period [ms]
   const RETRY_MS = 2000; // wait after a failed request [ms]
+  const REQUEST_TIMEOUT_MS = 8000; // a request with no reply by then has failed [ms]
+  const GONE_AFTER_MS = 3000; // failing this long: the server is not answering [ms]
   const GRID_REFRESH_MS = 1000; // occupancy / age views are read whole at most this often [ms]
   const STALE_UNIT_S = 10; // a unit state this much older than the map's stamp is faded [s]
   const TOKEN_KEY = "fleetmap.token";
   const BACKGROUND = "#1b1d23";
   const COLOURS = { unit: [31, 111, 235], path: [10, 165, 201], frozen: [229, 72, 77] };
+  /** The look of each unit activity (the server's UnitState.activity), in legend order. */
+  const STATES = {
+    moving: { words: "moving", colour: COLOURS.unit, shape: "disc" },
+    waiting: { words: "waiting for traffic", colour: [245, 166, 35], shape: "yield" },
+    frozen: { words: "frozen", colour: COLOURS.frozen, shape: "ringed" },
+    broken_down: { words: "broken down", colour: [214, 51, 132], shape: "square" },
+    dwelling: { words: "dwelling at a stop", colour: [46, 160, 67], shape: "diamond" },
+    idle: { words: "idle (no task)", colour: [175, 182, 193], shape: "disc" },
+  };
+  /** A unit whose fleet posts no activity (and is not frozen). */
+  const UNREPORTED = { words: "state not posted", colour: [100, 116, 139], shape: "disc" };
   const AGE_STOPS = [[253, 231, 37], [33, 145, 140], [68, 1, 84]]; // fresh .. old
   const COST_NAMES = { 0: "free", 253: "inscribed", 254: "lethal", 255: "unknown" };
 
   const $ = (selector) => document.querySelector(selector);
   const rgb = (c) => `rgb(${c[0]}, ${c[1]}, ${c[2]})`;
   const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+  const two = (n) => String(n).padStart(2, "0");
+  const clock = (date) => `${two(date.getHours())}:${two(date.getMinutes())}:${two(date.getSeconds())}`;
+
+  const collator = new Intl.Collator("en", { numeric: true });
+  /** Natural order of unit ids: digit runs compare as numbers (u2 < u10), then by code unit. */
+  function byUnitId(a, b) {
+    return collator.compare(a.unit_id, b.unit_id) || (a.unit_id < b.unit_id ? -1 : a.unit_id > b.unit_id ? 1 : 0);
+  }
+
+  /** The activity key of a unit (a STATES key), or null when its fleet posts none. */
+  function stateOf(unit) {
+    if (unit.activity in STATES) return unit.activity;
+    return unit.frozen ? "frozen" : null;
+  }
+
+  const lookOf = (unit) => STATES[stateOf(unit)] ?? UNREPORTED;
 
   // ------------------------------------------------------------------ token and API
   let token = tokenFromFragment() ?? stored(TOKEN_KEY);
@@ -94,7 +127,8 @@
   async function request(path) {
     for (let attempt = 0; ; attempt++) {
       const headers = token ? { Authorization: `Bearer ${token}` } : {};
-      const response = await fetch(path, { headers, cache: "no-store" });
+      const signal = AbortSignal.timeout(REQUEST_TIMEOUT_MS);
+      const response = await fetch(path, { headers, cache: "no-store", signal });
       if (response.ok) return response;
       if (response.status === 401 && attempt === 0 && (await askToken())) continue;
       let detail = response.statusText;
@@ -282,12 +316,13 @@
     try {
       if (!document.hidden) {
         await followCostmap();
+        noteAnswer();
         await refreshGridView();
         showStatus();
       }
       setTimeout(pollMap, POLL_MS);
     } catch (err) {
-      showError(err);
+      noteFailure(err);
       setTimeout(pollMap, RETRY_MS);
     }
   }
@@ -295,15 +330,56 @@
   async function pollUnits() {
     try {
       if (!document.hidden) {
-        units = (await getJSON("v1/units")).units;
+        units = (await getJSON("v1/units")).units.sort(byUnitId);
+        noteAnswer();
         renderUnits();
         requestDraw();
       }
       setTimeout(pollUnits, UNITS_MS);
     } catch (err) {
-      showError(err);
+      noteFailure(err);
       setTimeout(pollUnits, RETRY_MS);
     }
+  }
+
+  // ------------------------------------------------------------------ is the server there?
+  const link = { failingSince: null, answeredAt: null, timer: null, gone: false };
+
+  /** A request failed: past GONE_AFTER_MS of failures (not 401/403) the server is gone. */
+  function noteFailure(err) {
+    showError(err);
+    if (err instanceof ApiError && (err.status === 401 || err.status === 403)) return;
+    if (link.failingSince !== null) return;
+    link.failingSince = new Date();
+    link.timer = setTimeout(markGone, GONE_AFTER_MS);
+  }
+
+  /** The server answered a request (2xx): it is there. */
+  function noteAnswer() {
+    link.answeredAt = new Date();
+    if (link.failingSince === null) return;
+    clearTimeout(link.timer);
+    link.failingSince = null;
+    if (!link.gone) return;
+    link.gone = false;
+    $("#banner").hidden = true;
+    $("#stale-note").hidden = true;
+    $("#stage").classList.remove("stale");
+    requestDraw();
+  }
+
+  function markGone() {
+    link.gone = true;
+    const server = new URL(".", location.href).href;
+    const banner = $("#banner");
+    banner.textContent = `The map server at ${server} is not answering since ${clock(link.failingSince)}; retrying`;
+    banner.hidden = false;
+    const note = $("#stale-note");
+    const last = link.answeredAt ? ` received at ${clock(link.answeredAt)}` : "";
+    note.textContent = `stale: the last map${last} (version ${map.version}, stamp ${fmt(map.stamp, " s")})`;
+    note.hidden = false;
+    $("#stage").classList.add("stale");
+    requestDraw();
   }
 
   // ------------------------------------------------------------------ drawing
@@ -376,6 +452,68 @@
     return map.stamp !== null && map.stamp - unit.stamp > STALE_UNIT_S;
   }
 
+  /** Trace the outline of a marker of ``shape`` centred on (x, y), ``r`` [px] across. */
+  function traceShape(c, shape, x, y, r) {
+    c.beginPath();
+    if (shape === "square") {
+      const h = 0.85 * r;
+      c.rect(x - h, y - h, 2 * h, 2 * h);
+    } else if (shape === "diamond") {
+      const h = 1.2 * r;
+      c.moveTo(x, y - h);
+      c.lineTo(x + h, y);
+      c.lineTo(x, y + h);
+      c.lineTo(x - h, y);
+      c.closePath();
+    } else if (shape === "yield") {
+      const h = 1.25 * r; // a triangle pointing down, as a give-way sign
+      c.moveTo(x - h, y - 0.6 * h);
+      c.lineTo(x + h, y - 0.6 * h);
+      c.lineTo(x, y + 1.1 * h);
+      c.closePath();
+    } else {
+      c.arc(x, y, r, 0, 2 * Math.PI);
+    }
+  }
+
+  /** One unit marker in ``look`` at (x, y) [px], radius ``r`` [px], heading ``yaw`` [rad]
+   * (null: none); the map and the legend draw with it alike. */
+  function drawMarker(c, look, x, y, r, yaw, dpr) {
+    const colour = rgb(look.colour);
+    traceShape(c, look.shape, x, y, r);
+    c.fillStyle = colour;
+    c.fill();
+    c.lineWidth = 1.2 * dpr;
+    c.strokeStyle = "rgba(0, 0, 0, 0.75)";
+    c.stroke();
+    if (look.shape === "square") {
+      const h = 0.55 * r; // broken down: a cross on the square
+      c.beginPath();
+      c.moveTo(x - h, y - h);
+      c.lineTo(x + h, y + h);
+      c.moveTo(x + h, y - h);
+      c.lineTo(x - h, y + h);
+      c.strokeStyle = "#ffffff";
+      c.lineWidth = 1.5 * dpr;
+      c.stroke();
+    }
+    if (look.shape === "ringed") {
+      c.beginPath();
+      c.arc(x, y, r + 4 * dpr, 0, 2 * Math.PI);
+      c.strokeStyle = colour;
+      c.lineWidth = 2.5 * dpr;
+      c.stroke();
+    }
+    if (yaw !== null) {
+      c.beginPath();
+      c.moveTo(x, y);
+      c.lineTo(x + 1.7 * r * Math.cos(yaw), y - 1.7 * r * Math.sin(yaw));
+      c.strokeStyle = colour;
+      c.lineWidth = 2 * dpr;
+      c.stroke();
+    }
+  }
+
   function drawUnits() {
     if (!map.meta) return;
     const dpr = window.devicePixelRatio || 1;
@@ -401,25 +539,9 @@
         ctx.fillRect(gx - 3 * dpr, gy - 3 * dpr, 6 * dpr, 6 * dpr);
       }
       const [x, y] = worldToCanvas(unit.pose.x, unit.pose.y);
-      const colour = rgb(unit.frozen ? COLOURS.frozen : COLOURS.unit);
-      ctx.beginPath();
-      ctx.arc(x, y, radius, 0, 2 * Math.PI);
-      ctx.fillStyle = colour;
-      ctx.fill();
-      ctx.beginPath();
-      ctx.moveTo(x, y);
-      ctx.lineTo(x + 1.7 * radius * Math.cos(unit.pose.yaw), y - 1.7 * radius * Math.sin(unit.pose.yaw));
-      ctx.strokeStyle = colour;
-      ctx.lineWidth = 2 * dpr;
-      ctx.stroke();
-      if (unit.frozen) {
-        ctx.beginPath();
-        ctx.arc(x, y, radius + 4 * dpr, 0, 2 * Math.PI);
-        ctx.strokeStyle = colour;
-        ctx.lineWidth = 2.5 * dpr;
-        ctx.stroke();
-      }
-      const label = unit.frozen ? `${unit.unit_id} (frozen)` : unit.unit_id;
+      drawMarker(ctx, lookOf(unit), x, y, radius, unit.pose.yaw, dpr);
+      const state = stateOf(unit);
+      const label = state === null || state === "moving" ? unit.unit_id : `${unit.unit_id} (${STATES[state].words})`;
       const room = canvas.width - (x + radius + 5 * dpr) > ctx.measureText(label).width;
       const lx = room ? x + radius + 5 * dpr : x - radius - 5 * dpr; // left of it at the edge
       ctx.textAlign = room ? "left" : "right";
@@ -454,6 +576,33 @@
     list.append(li);
   }
 
+  /** A small canvas with the marker of ``look``, as drawn on the map. */
+  function markerIcon(look) {
+    const dpr = window.devicePixelRatio || 1;
+    const icon = document.createElement("canvas");
+    icon.className = "marker";
+    icon.width = icon.height = Math.round(22 * dpr);
+    const half = icon.width / 2;
+    drawMarker(icon.getContext("2d"), look, half, half, 5 * dpr, null, dpr);
+    return icon;
+  }
+
+  /** The legend rows of the unit states: every activity, and "state not posted" while a
+   * shown unit has none. */
+  function renderStateLegend(list) {
+    const keys = Object.keys(STATES);
+    if (units.some((unit) => stateOf(unit) === null)) keys.push("unreported");
+    for (const key of keys) {
+      const look = STATES[key] ?? UNREPORTED;
+      const li = document.createElement("li");
+      li.className = "state";
+      li.dataset.state = key;
+      li.append(markerIcon(look));
+      item(li, "span", look.words);
+      list.append(li);
+    }
+  }
+
   function renderLegend() {
     const list = $("#legend");
     list.replaceChildren();
@@ -473,9 +622,8 @@
       legendRow(list, `linear-gradient(90deg, ${stops})`, `evidence age 0 .. ${ageMax} s (square-root scale)`);
       legendRow(list, cost(255), "never observed");
     }
-    legendRow(list, rgb(COLOURS.unit), "unit and heading", "round");
-    legendRow(list, rgb(COLOURS.frozen), "frozen unit", "round");
-    legendRow(list, rgb(COLOURS.path), "planned path", "line");
+    renderStateLegend(list);
+    legendRow(list, rgb(COLOURS.path), "planned path (the line from a unit: its heading)", "line");
   }
 
   const fmt = (value, unit = "") => (value === null || value === undefined ? "none" : `${+value.toFixed(4)}${unit}`);
@@ -506,19 +654,30 @@
     }
   }
 
+  let legendUnreported = false; // does the legend list "state not posted"?
+
   function renderUnits() {
     const list = $("#units");
     list.replaceChildren();
     if (units.length === 0) item(list, "li", "none published", "empty");
     for (const unit of units) {
+      const state = stateOf(unit);
       const li = document.createElement("li");
       li.dataset.unit = unit.unit_id;
-      li.className = [unit.frozen ? "frozen" : "", isStale(unit) ? "stale" : ""].join(" ").trim();
-      item(li, "span", unit.unit_id, "id");
+      li.className = [state ?? "unreported", isStale(unit) ? "stale" : ""].join(" ").trim();
+      const head = item(li, "div", "", "head");
+      head.append(markerIcon(lookOf(unit)));
+      item(head, "span", unit.unit_id, "id");
+      item(head, "span", lookOf(unit).words, "state");
       const where = `(${unit.pose.x.toFixed(2)}, ${unit.pose.y.toFixed(2)}) m at ${unit.stamp.toFixed(1)} s`;
-      item(li, "div", unit.frozen ? `frozen · ${where}` : where, "detail");
+      item(li, "div", where, "detail");
       if (unit.reason) item(li, "div", unit.reason, "reason");
       list.append(li);
+    }
+    const unreported = units.some((unit) => stateOf(unit) === null);
+    if (unreported !== legendUnreported && palettes) {
+      legendUnreported = unreported;
+      renderLegend();
     }
   }
 
@@ -649,9 +808,10 @@
         ageMax = Math.round(2 * Math.max(decay.half_life_occupied, decay.half_life_free));
         setGeometry(map.meta.width, map.meta.height);
         await readFullCostmap();
+        noteAnswer();
         break;
       } catch (err) {
-        showError(err);
+        noteFailure(err);
         await sleep(RETRY_MS);
       }
     }
@@ -666,6 +826,11 @@
     ready, // resolves once the metadata and the first costmap are in
     stats, // fullReads, updateReads, patchesApplied, gridReads
     colours: COLOURS,
+    states: STATES, // activity -> {words, colour, shape}
+    byUnitId, // the one comparator of unit ids (natural order)
+    get serverGone() {
+      return link.gone;
+    },
     get version() {
       return map.version;
     },
