@@ -3,8 +3,9 @@
 Starts ``fleetmap serve`` on a free loopback port with a temporary data dir
 (``scenarios.run.embedded_server``, the default 100 m x 50 m grid), posts the
 scans of eight units patrolling the sample warehouse (``fleet.boxworld``), publishes the
-units with paths planned by the server (one unit, sent to a goal inside a rack, frozen),
-and screenshots the page with headless Chromium (Debian's ``chromium``).
+units in every state of the viewer's legend (moving and waiting ones with paths planned
+by the server; the frozen one sent to a goal inside a rack), and screenshots the page
+with headless Chromium (Debian's ``chromium``).
 
     .venv/bin/python docs/make_picture.py [--out docs/images/viewer.png]
 """
@@ -29,8 +30,14 @@ SIZE = (1400, 760)  # [px] window
 SETTLE_MS = 6000  # [ms] of the page's (virtual) time before the screenshot
 
 
+ACTIVITY = ["moving", "waiting", "moving", "broken_down", "dwelling", "moving", "frozen", "idle"]
+"""What the k-th unit (by id) is shown doing: every state of the legend at least once."""
+PLANS = ("moving", "waiting")  # the states shown with a planned path
+
+
 def fill(client: MapClient) -> None:
-    """Scans of eight patrolling units, then their states with planned paths."""
+    """Scans of eight patrolling units, then their states (``ACTIVITY``), those that
+    drive or wait with paths planned by the server."""
     warehouse = warehouse_layout()
     scans = sample_scans(warehouse, 2400, beams=360, seed=4, units=8)
     for i in range(0, len(scans), 256):
@@ -39,16 +46,20 @@ def fill(client: MapClient) -> None:
     junctions = [(x, y) for x in warehouse.lane_x for y in warehouse.lane_y]
     states = []
     for k, (unit_id, scan) in enumerate(sorted(last.items())):
-        start = (scan.pose.x, scan.pose.y)
-        if k == 6:  # sent into a rack: no admissible path, so it freezes
+        start, doing = (scan.pose.x, scan.pose.y), ACTIVITY[k]
+        if doing == "frozen":  # sent into a rack: no admissible path, so it freezes
             rack = warehouse.world.boxes[[kind == "rack" for kind in warehouse.kinds]][3]
             goal = ((rack[0] + rack[2]) / 2, (rack[1] + rack[3]) / 2)
             reason = f"no path to ({goal[0]:.1f}, {goal[1]:.1f}): the goal is in a rack"
-            states.append(UnitState.of(unit_id, scan.stamp, scan.pose, frozen=True, reason=reason))
+            states.append(
+                UnitState.of(unit_id, scan.stamp, scan.pose, reason=reason, activity=doing)
+            )
             continue
-        goal = junctions[(7 * k + 5) % len(junctions)]
-        plan = client.plan(start, goal, allow_unknown=True, unit_id=unit_id)
-        states.append(UnitState.of(unit_id, scan.stamp, scan.pose, plan.path))
+        path = ()
+        if doing in PLANS:
+            goal = junctions[(7 * k + 5) % len(junctions)]
+            path = client.plan(start, goal, allow_unknown=True, unit_id=unit_id).path
+        states.append(UnitState.of(unit_id, scan.stamp, scan.pose, path, activity=doing))
     client.publish_units(states)
 
 

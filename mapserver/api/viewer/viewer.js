@@ -518,7 +518,7 @@
     if (!map.meta) return;
     const dpr = window.devicePixelRatio || 1;
     const footprint = map.meta.inflation.inscribed_radius / map.meta.resolution; // [cells]
-    const radius = Math.max(5 * dpr, footprint * camera.scale);
+    const radius = Math.max(6 * dpr, footprint * camera.scale);
     ctx.font = `${12 * dpr}px system-ui, "DejaVu Sans", sans-serif`;
     for (const unit of units) {
       ctx.globalAlpha = isStale(unit) ? 0.45 : 1;
@@ -583,7 +583,7 @@
     icon.className = "marker";
     icon.width = icon.height = Math.round(22 * dpr);
     const half = icon.width / 2;
-    drawMarker(icon.getContext("2d"), look, half, half, 5 * dpr, null, dpr);
+    drawMarker(icon.getContext("2d"), look, half, half, 6 * dpr, null, dpr);
     return icon;
   }
 
@@ -623,7 +623,7 @@
       legendRow(list, cost(255), "never observed");
     }
     renderStateLegend(list);
-    legendRow(list, rgb(COLOURS.path), "planned path (the line from a unit: its heading)", "line");
+    legendRow(list, rgb(COLOURS.path), "planned path", "line");
   }
 
   const fmt = (value, unit = "") => (value === null || value === undefined ? "none" : `${+value.toFixed(4)}${unit}`);
