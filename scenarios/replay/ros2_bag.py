@@ -37,12 +37,12 @@ import os
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any, Final
+from typing import IO, Final
 
 import orjson
 import yaml
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.reader import McapReader, make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 from mcap_ros2._dynamic import EncoderFunction, serialize_dynamic
@@ -136,11 +136,14 @@ def export_ros2(replay: str | os.PathLike[str], out: str | os.PathLike[str]) -> 
     return bag.counts
 
 
-def _translated(reader: Any, geometry: GridGeometry) -> Iterator[tuple[int, list[_Item]]]:
-    """(log time [ns], the ROS 2 messages) of each replay message that has any."""
+def _translated(reader: McapReader, geometry: GridGeometry) -> Iterator[tuple[int, list[_Item]]]:
+    """(log time [ns], the ROS 2 messages) of each replay message that has any: the fused
+    scans when the replay has them, else its sampled LaserScans (ValueError for a replay
+    without a summary, which would not say which)."""
     summary = reader.get_summary()
-    channels = summary.channels.values() if summary is not None else ()
-    fused = any(c.topic == FUSED_TOPIC for c in channels)
+    if summary is None:
+        raise ValueError("no summary section (an unfinished replay?)")
+    fused = any(c.topic == FUSED_TOPIC for c in summary.channels.values())
     for schema, channel, message in reader.iter_messages(log_time_order=True):
         ns, name, topic = message.log_time, schema.name if schema else "", channel.topic
         if topic == FUSED_TOPIC:

@@ -352,6 +352,7 @@ def test_the_command_writes_the_bag_beside_the_run_and_says_what_it_holds(tiny, 
         ("missing", "RUN_DIR '{run}' is not a run folder (no such file or folder)"),
         ("empty", "RUN_DIR '{run}' is not a run folder (no replay.mcap)"),
         ("garbage", "{run}/replay.mcap: not a readable fleetmap replay"),
+        ("truncated", "{run}/replay.mcap: not a readable fleetmap replay"),
         ("no_parent", "--out '{out}': cannot write (No such file or directory)"),
         ("onto_replay", "--out '{out}' is the run's replay itself; name another file"),
     ],
@@ -362,6 +363,9 @@ def test_bad_run_folders_and_outputs_are_one_line_errors(tiny, tmp_path, capsys,
         run.mkdir()
     if where == "garbage":
         (run / REPLAY_FILENAME).write_bytes(b"not an mcap file")
+    if where == "truncated":  # a run cut off while its replay was written
+        whole = (tiny[2] / REPLAY_FILENAME).read_bytes()
+        (run / REPLAY_FILENAME).write_bytes(whole[: len(whole) // 2])
     if where in ("no_parent", "onto_replay"):
         run = tiny[2]
         out = tmp_path / "nowhere" / "bag.mcap" if where == "no_parent" else run / REPLAY_FILENAME
