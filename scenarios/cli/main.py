@@ -8,6 +8,7 @@ import sys
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
+from scenarios.cli.export import add_export_parser
 from scenarios.cli.plan import add_plan_parser
 from scenarios.cli.run import add_run_parsers
 from scenarios.cli.sweep import add_sweep_parser
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.choices["replay"].set_defaults(handler=run_replay)  # journals and run replays
     add_sweep_parser(sub)
     add_journal_parser(sub)
+    add_export_parser(sub)
     return parser
 
 

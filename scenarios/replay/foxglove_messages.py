@@ -162,6 +162,20 @@ def grid(stamp: float, geometry: GridGeometry, values: np.ndarray, field: str) -
     }
 
 
+def grid_values(message: Mapping[str, Any]) -> np.ndarray:
+    """The (rows, column_count) values of a one-field ``foxglove.Grid`` made by ``grid``,
+    in its field's dtype (uint8 or int8); ValueError for another layout or type."""
+    (field,) = message["fields"]
+    dtypes = {index: dtype for dtype, index in _GRID_TYPES.items()}
+    if field["type"] not in dtypes or message["cell_stride"] != 1 or field["offset"] != 0:
+        raise ValueError(f"not a one-byte-per-cell grid: field {field!r}")
+    width = int(message["column_count"])
+    if message["row_stride"] != width:
+        raise ValueError(f"row_stride {message['row_stride']!r} is not column_count {width}")
+    data = np.frombuffer(base64.b64decode(message["data"], validate=True), dtypes[field["type"]])
+    return data.reshape(-1, width)
+
+
 # ------------------------------------------------------------------------------ scene
 def unit_entity_id(unit_id: str) -> str:
     return f"unit/{unit_id}"

@@ -197,7 +197,7 @@ def read_scans(path: str | os.PathLike[str], until: float | None = None) -> list
                     continue
                 if until_ns is not None and message.log_time > until_ns:
                     break
-                scans.append(_scan(channel, orjson.loads(message.data)))
+                scans.append(scan_of(channel, orjson.loads(message.data)))
     except (OSError, McapError, ValueError, KeyError, TypeError) as exc:
         raise ReplayFileError(f"{path}: not a readable fleetmap replay ({exc!r})") from None
     return scans
@@ -329,8 +329,9 @@ def _scan_channel(scan: ScanSample) -> _Channel:
     return _Channel(scan_topic(scan.unit_id), "foxglove.LaserScan", tuple(sorted(metadata.items())))
 
 
-def _scan(channel: Channel, message: dict[str, Any]) -> Scan:
-    """The Scan of one LaserScan message on a channel made by ``_scan_channel``."""
+def scan_of(channel: Channel, message: dict[str, Any]) -> Scan:
+    """The Scan of one ``foxglove.LaserScan`` message (decoded JSON) on a channel made by
+    ``_scan_channel``."""
     meta = channel.metadata
     x, y, yaw = planar_pose(message["pose"])
     body: dict[str, Any] = {
