@@ -23,6 +23,12 @@ optimum, as with an exact priority queue, up to floating-point rounding: on an e
 node, gains below ``REOPEN_TOLERANCE`` cells (the same cost summed in another order) do
 not reopen it. ``expanded`` counts distinct nodes expanded.
 
+With ``landmarks`` (``planner.landmarks``) the heuristic is also raised by ALT bounds,
+admissible and consistent up to their margin. Once the goal has a cost, a node whose f
+is within ``REOPEN_TOLERANCE`` plus that margin of it is neither queued nor expanded: it
+cannot lead to a cheaper path, and with a heuristic exact along shortest paths this
+stops the search expanding every cell of every equal-cost path.
+
 Buffers the size of the grid are allocated once per ``GridPlanner`` and only the nodes a
 search touched are reset, so a search costs what it expands.
 """
