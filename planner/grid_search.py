@@ -23,6 +23,12 @@ optimum, as with an exact priority queue, up to floating-point rounding: on an e
 node, gains below ``REOPEN_TOLERANCE`` cells (the same cost summed in another order) do
 not reopen it. ``expanded`` counts distinct nodes expanded.
 
+With ``landmarks`` (``planner.landmarks``) the heuristic is also raised by ALT bounds,
+admissible and consistent up to their margin. Once the goal has a cost, a node whose f
+is within ``REOPEN_TOLERANCE`` plus that margin of it is neither queued nor expanded: it
+cannot lead to a cheaper path, and with a heuristic exact along shortest paths this
+stops the search expanding every cell of every equal-cost path.
+
 Buffers the size of the grid are allocated once per ``GridPlanner`` and only the nodes a
 search touched are reset, so a search costs what it expands.
 """
@@ -39,6 +45,7 @@ from numba import njit
 from mapserver.core.costvalues import LETHAL, MAX_GRADED, UNKNOWN
 from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
+from planner.landmarks import LandmarkHeuristic
 
 NEUTRAL_COST = 50.0  # NavFn COST_NEUTRAL
 COST_FACTOR = 0.8  # NavFn COST_FACTOR
@@ -91,13 +98,22 @@ class GridPlanner:
     """Plans on costmaps of one geometry, reusing its search buffers between plans.
 
     clearance_cap: [m] clearance is computed exactly up to this distance.
+    landmarks: how many ALT landmarks raise the A* heuristic (``planner.landmarks``); 0,
+    the default, is the octile distance alone. Their tables (4 B per cell each) are built
+    by one Dijkstra per landmark on the first A* plan over a costmap and reused while its
+    content stays the same: worth it when many plans share one costmap, a loss when the
+    costmap changes between plans.
     """
 
-    def __init__(self, geometry: GridGeometry, clearance_cap: float = 2.0) -> None:
+    def __init__(
+        self, geometry: GridGeometry, clearance_cap: float = 2.0, landmarks: int = 0
+    ) -> None:
         self.geometry = geometry
         self.clearance_cap = clearance_cap
         self._wp = geometry.width + 2  # a border of LETHAL cells spares the bounds checks
         n = self._wp * (geometry.height + 2)
+        self.landmarks = LandmarkHeuristic(landmarks, n)
+        self._no_landmarks = np.empty((0, n), dtype=np.float32)
         self._padded = np.full((geometry.height + 2, self._wp), LETHAL, dtype=np.uint8)
         self._nodes = np.zeros(n, dtype=NODE)
         self._nodes["g"] = np.inf
@@ -135,15 +151,18 @@ class GridPlanner:
         weights = cell_weights(allow_unknown)
         flat = np.ascontiguousarray(costs).ravel()
         self._padded[1:-1, 1:-1] = costs
-        top = np.max(weights[np.isfinite(weights)])
-        # f stays below the grid's size x the dearest step: its buckets fit the tags
-        width = max(g.resolution * BUCKET_WIDTH, g.size * SQRT2 * g.resolution * top / 2**28)
-        span = 1 << int(math.ceil(SQRT2 * g.resolution * (top + 1.0) / width) + 2).bit_length()
-        found, cost, expanded, touched, self._entry_node, self._entry_next = _search(
-            self._padded.ravel(), self._wp, cells[0], cells[1], weights, g.resolution,
-            float(algorithm == "astar"), width, self._nodes, self._touched,
-            np.empty(span, np.int32), self._entry_node, self._entry_next,
-        )  # fmt: skip
+        padded = self._padded.ravel()
+        lm, lm_goal, margin = self._no_landmarks, np.empty(0), 0.0
+        if algorithm == "astar" and self.landmarks.count:
+            lm, margin = self.landmarks.tables(
+                padded, allow_unknown, weights,
+                lambda source: self._distances_from(padded, source, weights),
+            )  # fmt: skip
+            at_goal = lm[:, cells[1]].astype(np.float64)
+            lm_goal = np.where(np.isfinite(at_goal), at_goal, -np.inf)
+        found, cost, expanded, touched = self._run(
+            padded, cells[0], cells[1], weights, float(algorithm == "astar"), lm, lm_goal, margin
+        )
         if found:
             path = _trace_path(self._nodes["parent"], cells[0], cells[1])
             rows, cols = np.divmod(path, self._wp)
@@ -168,6 +187,30 @@ class GridPlanner:
             planning_ms=planning_ms,
         )
 
+    def _run(self, padded, start, goal, weights, hscale, lm, lm_goal, margin):
+        """One ``_search`` on the padded grid; returns (found, cost, expanded, touched),
+        the nodes left set for the caller to read and reset."""
+        g = self.geometry
+        top = np.max(weights[np.isfinite(weights)])
+        # f stays below the grid's size x the dearest step: its buckets fit the tags
+        width = max(g.resolution * BUCKET_WIDTH, g.size * SQRT2 * g.resolution * top / 2**28)
+        span = 1 << int(math.ceil(SQRT2 * g.resolution * (top + 1.0) / width) + 2).bit_length()
+        found, cost, expanded, touched, self._entry_node, self._entry_next = _search(
+            padded, self._wp, start, goal, weights, g.resolution, hscale, width, self._nodes,
+            self._touched, np.empty(span, np.int32), self._entry_node, self._entry_next,
+            lm, lm_goal, margin,
+        )  # fmt: skip
+        return found, cost, expanded, touched
+
+    def _distances_from(self, padded, source, weights) -> np.ndarray:
+        """Dijkstra's costs [m] from padded cell ``source`` to every padded cell (inf
+        where unreachable)."""
+        empty = self._no_landmarks
+        touched = self._run(padded, source, -1, weights, 0.0, empty, np.empty(0), 0.0)[3]
+        distances = self._nodes["g"].copy()
+        _reset(self._nodes, self._touched, touched)
+        return distances
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _octile(r1, c1, r2, c2, resolution):
@@ -178,31 +221,50 @@ def _octile(r1, c1, r2, c2, resolution):
     return resolution * (max(dr, dc) - lo + SQRT2 * lo)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _heuristic(r, c, node, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin):
+    """Lower bound [m] on the cost from cell (r, c) (padded index ``node``) to the goal:
+    hscale x octile, raised by the landmark bounds ``lm_goal[k] - lm[k, node] - margin``
+    (``landmarks.LandmarkHeuristic``; none when ``lm`` has no rows)."""
+    h = hscale * _octile(r, c, goal_r, goal_c, resolution)
+    for k in range(lm.shape[0]):
+        bound = lm_goal[k] - lm[k, node] - margin
+        if bound > h:
+            h = bound
+    return h
+
+
 @njit(cache=True, nogil=True)
 def _search(costs, wp, start, goal, weights, resolution, hscale, width,
-            nodes, touched, heads, entry_node, entry_next):  # fmt: skip
-    """A* (f = g + hscale x octile; hscale 0 is Dijkstra) from start to goal over a
-    bucket queue; returns (found, cost, expanded, touched count, entry_node, entry_next).
+            nodes, touched, heads, entry_node, entry_next, lm, lm_goal, margin):  # fmt: skip
+    """A* (f = g + h, h from ``_heuristic``; hscale 0 and no landmarks is Dijkstra) from
+    start to goal over a bucket queue; returns (found, cost, expanded, touched count,
+    entry_node, entry_next). A goal of -1 searches every reachable cell (Dijkstra's
+    distances stay in ``nodes``).
 
     ``costs`` is the padded grid (``wp`` columns, a LETHAL border). Bucket ``b`` holds
     the entries of f in [b, b + 1) x ``width``, a LIFO list each, kept in the circular
     ``heads`` (a power of two slots); a node's tag holds the bucket of its current f, so
     an entry of another bucket is stale."""
     n_touched = 0
-    if weights[costs[start]] == np.inf or weights[costs[goal]] == np.inf:
+    if weights[costs[start]] == np.inf or (goal >= 0 and weights[costs[goal]] == np.inf):
         return False, 0.0, 0, n_touched, entry_node, entry_next
     goal_r, goal_c = divmod(goal, wp)
     start_r, start_c = divmod(start, wp)
     inv = 1.0 / width
     mask = heads.shape[0] - 1  # a power of two
     tolerance = REOPEN_TOLERANCE * resolution
+    slack = tolerance + margin  # f within this of the goal's cost is a tie, not a gain
     diag = resolution * SQRT2
     heads[:] = -1
     capacity = entry_node.shape[0]
     top = 0  # entries ever used
     free = -1  # recycled entries
     nodes[start].g = 0.0
-    cur = np.int64(hscale * _octile(start_r, start_c, goal_r, goal_c, resolution) * inv)
+    h0 = _heuristic(
+        start_r, start_c, start, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
+    )
+    cur = np.int64(h0 * inv)
     first = cur  # tags hold buckets from here on
     touched[0] = start
     n_touched = 1
@@ -217,7 +279,7 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
         while heads[slot] == -1:
             cur += 1
             slot = (slot + 1) & mask
-        if cur * width >= nodes[goal].g:
+        if goal >= 0 and cur * width >= nodes[goal].g:
             break  # every entry left has f >= the goal's cost
         e = heads[slot]
         heads[slot] = entry_next[e]
@@ -228,6 +290,12 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
         tag = nodes[node].tag
         if tag & 3 == 1 or tag >> 2 != cur - first:
             continue  # stale: expanded at this g already, or its f moved
+        row, col = divmod(node, wp)
+        base = nodes[node].g
+        if node != goal and goal >= 0 and nodes[goal].g < np.inf:
+            h = _heuristic(row, col, node, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin)
+            if base + h >= nodes[goal].g - slack:
+                continue  # no path through it beats the goal's cost (ties: see the module)
         if tag & 3 == 0:
             expanded += 1
         nodes[node].tag = (tag & ~3) | 1
@@ -241,8 +309,6 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
             grown = np.empty(capacity, np.int32)
             grown[:top] = entry_next[:top]
             entry_next = grown
-        row, col = divmod(node, wp)
-        base = nodes[node].g
         w_east = weights[costs[node + 1]]
         w_west = weights[costs[node - 1]]
         w_south = weights[costs[node + wp]]
@@ -268,6 +334,10 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
                 candidate = base + diag * w
             old = nodes[nb].g
             if candidate < old:
+                h = _heuristic(row + dr, col + dc, nb, goal_r, goal_c, resolution, hscale,
+                               lm, lm_goal, margin)  # fmt: skip
+                if goal >= 0 and candidate + h >= nodes[goal].g - slack:
+                    continue  # cannot beat the goal's cost
                 state = 0
                 if old == np.inf:
                     touched[n_touched] = nb
@@ -280,9 +350,8 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
                         state = 2
                 nodes[nb].g = candidate
                 nodes[nb].parent = node
-                f = candidate + hscale * _octile(row + dr, col + dc, goal_r, goal_c, resolution)
-                b = np.int64(f * inv)
-                if b < cur:  # rounding only: h is consistent
+                b = np.int64((candidate + h) * inv)
+                if b < cur:  # rounding only: h is consistent up to the landmarks' margin
                     b = cur
                 nodes[nb].tag = ((b - first) << 2) | state
                 if free != -1:
@@ -296,6 +365,8 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width,
                 entry_next[e] = heads[s]
                 heads[s] = e
                 size += 1
+    if goal < 0:
+        return False, 0.0, expanded, n_touched, entry_node, entry_next
     cost = nodes[goal].g
     found = cost < np.inf
     return found, cost if found else 0.0, expanded, n_touched, entry_node, entry_next

@@ -7,7 +7,9 @@ walls, rack rows, totes; 0.05 m cells) inflated with the Nav2 defaults. Printed:
 Dijkstra from (2.5, 2.5) to (97.5, 97.5) m (time [ms], nodes expanded, path length [m]);
 and, in the same run, networkx ``astar_path`` on a 300 x 300 crop of the same costmap
 (the same weights and octile heuristic) against ``GridPlanner`` on that crop, with the
-speed ratio.
+speed ratio. A third line plans with ``GridPlanner(landmarks=6)``: the first plan
+(cold: it builds the landmark tables, one Dijkstra each) and the best of three more
+(warm: the same costmap), corner to corner and along the other diagonal.
 
 The peer: libtcod's C pathfinder (``tcod.path.Pathfinder`` over a ``CustomGraph``, A*
 with its octile heuristic at the free-cell cost, the ``bench`` extra) on the same
@@ -40,6 +42,7 @@ from planner.grid_search import GridPlanner, cell_weights
 from tests.benchmarks.inflation import warehouse
 
 RES = 0.05
+LANDMARKS = 6  # ALT landmarks of the third line (planner/landmarks.py)
 
 
 def costmap() -> np.ndarray:
@@ -124,6 +127,16 @@ def main() -> None:
         figures[f"{algorithm}_expanded"] = result.expanded
         print(f"{algorithm:8s} 2000 x 2000 corner to corner: {ms:7.1f} ms, "
               f"{result.expanded} expanded, path {result.length:.1f} m")  # fmt: skip
+    alt = GridPlanner(GridGeometry(2000, 2000, RES), landmarks=LANDMARKS)
+    cold = alt.plan(costs, (2.5, 2.5), (97.5, 97.5))  # builds the landmark tables
+    ms, result = best_of(3, lambda: alt.plan(costs, (2.5, 2.5), (97.5, 97.5)))
+    other_ms, other = best_of(3, lambda: alt.plan(costs, (2.5, 97.5), (97.5, 2.5)))
+    figures.update(alt_cold_ms=cold.planning_ms, alt_ms=ms, alt_expanded=result.expanded,
+                   alt_other_diagonal_ms=other_ms)  # fmt: skip
+    print(f"A* + {LANDMARKS} landmarks corner to corner: cold {cold.planning_ms:.1f} ms "
+          f"(tables built), warm {ms:.1f} ms, {result.expanded} expanded, cost "
+          f"{result.cost:.3f} m; other diagonal warm {other_ms:.1f} ms, {other.expanded} "
+          f"expanded, cost {other.cost:.3f} m")  # fmt: skip
     corner_a = (int(2.5 / RES), int(2.5 / RES))
     corner_b = (int(97.5 / RES), int(97.5 / RES))
     tcod_plan = tcod_planner(costs, corner_a, corner_b)
@@ -132,7 +145,8 @@ def main() -> None:
     figures.update(tcod_ms=tcod_ms, tcod_ratio=tcod_ms / figures["astar_ms"])
     print(f"tcod Pathfinder A* 2000 x 2000 corner to corner: {tcod_ms:.1f} ms (cost "
           f"{tcod_cost:.3f} m, ours {ours_full.cost:.3f} m): GridPlanner A* "
-          f"{tcod_ms / figures['astar_ms']:.1f}x faster")  # fmt: skip
+          f"{tcod_ms / figures['astar_ms']:.1f}x faster, with landmarks (warm) "
+          f"{tcod_ms / figures['alt_ms']:.1f}x")  # fmt: skip
     crop = np.ascontiguousarray(costs[40:340, 40:340])
     small = GridPlanner(GridGeometry(300, 300, RES))
     s_cell, g_cell = free_cell_near(crop, 10), free_cell_near(crop, 290)
