@@ -33,6 +33,8 @@ from itertools import groupby
 from operator import attrgetter
 from typing import Final
 
+import orjson
+
 from fleet.unit import DriveLimits
 from mapserver.core.geometry import GridGeometry
 from scenarios.replay.foxglove_messages import (
@@ -117,6 +119,13 @@ def schema_text(name: str) -> bytes:
     """The JSON text of schema ``name`` (a key of SCHEMAS) for an MCAP Schema record or a
     Foxglove WebSocket advertisement."""
     return json.dumps(SCHEMAS[name], separators=(",", ":")).encode()
+
+
+def encode(message: Message | bytes) -> bytes:
+    """A message's JSON bytes (numpy arrays as lists; bytes pass as they are)."""
+    if isinstance(message, bytes):
+        return message
+    return orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 class SceneObjects:

@@ -50,6 +50,7 @@ from scenarios.replay.channels import (
     Channel,
     Item,
     SceneObjects,
+    encode,
     grid_items,
     log_items,
     map_truth_items,
@@ -122,10 +123,7 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
                     schemas[channel.schema],
                     dict(channel.metadata),
                 )
-            if isinstance(message, bytes):
-                data = message
-            else:
-                data = orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
+            data = encode(message)
             writer.add_message(channels[channel], log_time=ns, data=data, publish_time=ns)
         writer.finish()
     return Path(path)
