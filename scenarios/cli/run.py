@@ -9,6 +9,7 @@ import os
 import sys
 from pathlib import Path
 
+from mapserver.core.errors import FleetmapError
 from mapserver.core.sensor_model import Policy
 
 METRICS_FILE = "metrics.json"
@@ -25,6 +26,7 @@ TABLE_COLUMNS = (
     ("trip_time_ratio", "actual/ideal"),
     ("fleet_efficiency", "efficiency"),
 )
+FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port (scenarios.replay.live)
 TWO_DECIMALS = ("trip_time_ratio", "fleet_efficiency")  # ratios near 1: one decimal is too coarse
 
 
@@ -43,6 +45,11 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("--server", help="URL of a running map server (default: start one)")
     run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
     run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
+    run.add_argument(
+        "--foxglove", nargs="?", const=FOXGLOVE_PORT, type=_port, metavar="PORT",
+        help=f"stream the run live to Foxglove on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT}; "
+        "0: a free port); needs the 'foxglove' extra",
+    )  # fmt: skip
     run.set_defaults(handler=run_one)
 
 
@@ -50,9 +57,17 @@ def run_one(args: argparse.Namespace) -> int:
     from scenarios.run.execute import ScenarioError, execute
 
     try:
-        metrics = execute(args.scenario, args.policy, args.seed, args.server, args.out,
-                          progress=_progress_bar(args.scenario.stem), announce=_say)  # fmt: skip
-    except (ScenarioError, ValueError, OSError) as exc:
+        live = _live(args.foxglove)
+        try:
+            metrics = execute(
+                args.scenario, args.policy, args.seed, args.server, args.out,
+                progress=_progress_bar(args.scenario.stem), announce=_say,
+                observers=[] if live is None else [live],
+            )  # fmt: skip
+        finally:
+            if live is not None:
+                live.stop()
+    except (ScenarioError, ValueError, OSError, FleetmapError) as exc:
         print(f"\nfleetmap run: error: {exc}", file=sys.stderr)
         return 2
     if args.json:
@@ -61,6 +76,28 @@ def run_one(args: argparse.Namespace) -> int:
         print(format_table([metrics]))
         print(f"outputs in {args.out}")
     return 0
+
+
+def _live(port: int | None):
+    """The live Foxglove stream of ``--foxglove`` (None without it), listening already."""
+    if port is None:
+        return None
+    from scenarios.replay.live import FoxgloveLive
+
+    live = FoxgloveLive(port)
+    _say(f"Foxglove: {live.url} (open in Foxglove: Open connection)")
+    return live
+
+
+def _port(text: str) -> int:
+    """A TCP port, 0 to 65535 (0: a free one)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"PORT must be an integer 0-65535, got {text!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"PORT must be an integer 0-65535, got {port}")
+    return port
 
 
 def _say(text: str) -> None:

@@ -1,5 +1,5 @@
 """Foxglove messages (JSON-encoded, for the schemas of ``foxglove_schemas``) from a run's
-record: scans, grids, scene entities, planned paths and log lines.
+record: scans, grids, frame transforms, scene entities, planned paths and log lines.
 
 Everything is in the one ``map`` frame (x right, y up, z up from the floor) [m, rad];
 timestamps are sim time as ``{"sec", "nsec"}``.
@@ -34,6 +34,7 @@ from typing import Any, Final
 import numpy as np
 
 from mapserver.core.geometry import GridGeometry
+from scenarios.replay.costmap_palette import COSTMAP_RGBA
 from scenarios.replay.foxglove_schemas import LOG_LEVELS, NUMERIC_TYPES
 from scenarios.run.record import ObjectState, PlanSample, ScanSample, UnitSample
 
@@ -141,39 +142,89 @@ def laser_scan(scan: ScanSample) -> Message:
 
 
 # ------------------------------------------------------------------------------ grids
-def grid(stamp: float, geometry: GridGeometry, values: np.ndarray, field: str) -> Message:
-    """A ``foxglove.Grid`` of one uint8 or int8 field: (height, width) ``values``, row 0 at
-    the origin's y (as Foxglove's y-major rows from ``pose``), cells ``resolution`` [m]."""
-    arr = np.ascontiguousarray(values)
-    if arr.shape != geometry.shape:
-        raise ValueError(f"{field} grid has shape {arr.shape}, the map is {geometry.shape}")
-    if arr.dtype not in _GRID_TYPES:
-        raise TypeError(f"{field} grid must be uint8 or int8, got dtype {arr.dtype}")
+def grid(stamp: float, geometry: GridGeometry, planes: Mapping[str, np.ndarray]) -> Message:
+    """A ``foxglove.Grid`` of uint8 or int8 fields, one per plane (name -> (height, width)
+    values), packed cell by cell in the order given (a cell is one byte per field); row 0
+    at the origin's y (as Foxglove's y-major rows from ``pose``), cells ``resolution`` [m]."""
+    arrays = []
+    for name, values in planes.items():
+        arr = np.asarray(values)
+        if arr.shape != geometry.shape:
+            raise ValueError(f"{name} grid has shape {arr.shape}, the map is {geometry.shape}")
+        if arr.dtype not in _GRID_TYPES:
+            raise TypeError(f"{name} grid must be uint8 or int8, got dtype {arr.dtype}")
+        arrays.append(arr)
+    cells = np.stack([a.view(np.uint8) for a in arrays], axis=-1)  # (height, width, fields)
     return {
         "timestamp": foxglove_time(stamp_ns(stamp)),
         "frame_id": FRAME_ID,
         "pose": pose(geometry.origin_x, geometry.origin_y),
         "column_count": geometry.width,
         "cell_size": {"x": geometry.resolution, "y": geometry.resolution},
-        "row_stride": geometry.width,
-        "cell_stride": 1,
-        "fields": [{"name": field, "offset": 0, "type": _GRID_TYPES[arr.dtype]}],
-        "data": base64.b64encode(arr.tobytes()).decode("ascii"),
+        "row_stride": geometry.width * len(arrays),
+        "cell_stride": len(arrays),
+        "fields": [
+            {"name": name, "offset": i, "type": _GRID_TYPES[a.dtype]}
+            for i, (name, a) in enumerate(zip(planes, arrays, strict=True))
+        ],
+        "data": base64.b64encode(np.ascontiguousarray(cells).tobytes()).decode("ascii"),
     }
 
 
-def grid_values(message: Mapping[str, Any]) -> np.ndarray:
-    """The (rows, column_count) values of a one-field ``foxglove.Grid`` made by ``grid``,
-    in its field's dtype (uint8 or int8); ValueError for another layout or type."""
-    (field,) = message["fields"]
+def grid_values(message: Mapping[str, Any], name: str | None = None) -> np.ndarray:
+    """The (rows, column_count) values of field ``name`` (or of the only field, when
+    ``name`` is None) of a ``foxglove.Grid`` made by ``grid``, in its dtype (uint8 or
+    int8); ValueError for another layout, type or a missing field."""
+    fields = message["fields"]
+    if name is None and len(fields) != 1:
+        raise ValueError(f"a grid of {len(fields)} fields needs a field name")
+    matching = [f for f in fields if name is None or f["name"] == name]
+    if not matching:
+        raise ValueError(f"the grid has no field {name!r}")
+    (field,) = matching
     dtypes = {index: dtype for dtype, index in _GRID_TYPES.items()}
-    if field["type"] not in dtypes or message["cell_stride"] != 1 or field["offset"] != 0:
-        raise ValueError(f"not a one-byte-per-cell grid: field {field!r}")
+    stride = int(message["cell_stride"])
+    if field["type"] not in dtypes or stride != len(fields) or not 0 <= field["offset"] < stride:
+        raise ValueError(f"not a one-byte-per-field grid: field {field!r}")
     width = int(message["column_count"])
-    if message["row_stride"] != width:
-        raise ValueError(f"row_stride {message['row_stride']!r} is not column_count {width}")
-    data = np.frombuffer(base64.b64decode(message["data"], validate=True), dtypes[field["type"]])
-    return data.reshape(-1, width)
+    if message["row_stride"] != width * stride:
+        raise ValueError(f"row_stride {message['row_stride']!r} is not {width} x {stride}")
+    raw = np.frombuffer(base64.b64decode(message["data"], validate=True), np.uint8)
+    cells = raw.reshape(-1, width, stride)[..., field["offset"]]
+    return np.ascontiguousarray(cells).view(dtypes[field["type"]])
+
+
+def costmap_grid(stamp: float, geometry: GridGeometry, costs: np.ndarray) -> Message:
+    """The costmap as a ``foxglove.Grid`` of five uint8 fields: ``red``, ``green``,
+    ``blue``, ``alpha`` (the cost's colour, ``costmap_palette``: Foxglove draws them as
+    they are) and ``cost`` (the Nav2 cost value itself)."""
+    rgba = COSTMAP_RGBA[np.asarray(costs, dtype=np.uint8)]
+    planes = {name: rgba[..., i] for i, name in enumerate(("red", "green", "blue", "alpha"))}
+    return grid(stamp, geometry, {**planes, "cost": costs})
+
+
+# ------------------------------------------------------------------------------ frames
+def base_link(unit_id: str) -> str:
+    """The frame of a unit's body: ``<unit>/base_link``."""
+    return f"{unit_id}/base_link"
+
+
+def frame_transforms(samples: Iterable[UnitSample]) -> Message:
+    """A ``foxglove.FrameTransforms`` with each unit's pose as the transform ``map`` ->
+    ``<unit>/base_link`` (translation x, y [m], z 0; rotation ``yaw`` [rad] about +z)."""
+    transforms = []
+    for sample in samples:
+        p = pose(sample.x, sample.y, yaw=sample.yaw)
+        transforms.append(
+            {
+                "timestamp": foxglove_time(stamp_ns(sample.stamp)),
+                "parent_frame_id": FRAME_ID,
+                "child_frame_id": base_link(sample.unit_id),
+                "translation": p["position"],
+                "rotation": p["orientation"],
+            }
+        )
+    return {"transforms": transforms}
 
 
 # ------------------------------------------------------------------------------ scene

@@ -1,7 +1,8 @@
 """The Foxglove JSON schemas of the replay's channels (``schema_encoding = "jsonschema"``).
 
 Foxglove identifies a channel's meaning by its schema *name* (``foxglove.LaserScan``,
-``foxglove.Grid``, ``foxglove.SceneUpdate``, ``foxglove.PosesInFrame``, ``foxglove.Log``) and
+``foxglove.Grid``, ``foxglove.SceneUpdate``, ``foxglove.PosesInFrame``, ``foxglove.Log``,
+``foxglove.FrameTransforms``) and
 reads the schema *text* for field types: notably ``contentEncoding: base64`` marks byte
 fields (``Grid.data``), which it decodes to bytes.
 
@@ -15,7 +16,6 @@ message built for these schemas is a valid Foxglove message.
 
 from __future__ import annotations
 
-import json
 from typing import Any, Final
 
 Schema = dict[str, Any]
@@ -204,12 +204,21 @@ SCENE_UPDATE: Final = _record(
     entities=_array(_SCENE_ENTITY),
 )
 
+FRAME_TRANSFORMS: Final = _record(
+    "foxglove.FrameTransforms",
+    transforms=_array(
+        _record(
+            "foxglove.FrameTransform",
+            timestamp=TIME,
+            parent_frame_id=_STRING,
+            child_frame_id=_STRING,
+            translation=_VECTOR3,
+            rotation=_QUATERNION,
+        )
+    ),
+)
+
 SCHEMAS: Final[dict[str, Schema]] = {
-    s["title"]: s for s in (LASER_SCAN, GRID, SCENE_UPDATE, POSES_IN_FRAME, LOG)
+    s["title"]: s for s in (LASER_SCAN, GRID, SCENE_UPDATE, POSES_IN_FRAME, LOG, FRAME_TRANSFORMS)
 }
-"""The five schemas by name (``foxglove.LaserScan``, ...)."""
-
-
-def schema_text(name: str) -> bytes:
-    """The JSON text of schema ``name`` (a key of SCHEMAS) for an MCAP Schema record."""
-    return json.dumps(SCHEMAS[name], separators=(",", ":")).encode()
+"""The six schemas by name (``foxglove.LaserScan``, ...)."""

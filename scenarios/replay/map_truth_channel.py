@@ -11,7 +11,6 @@ message per map read (``record.map_truth``, ``scenarios.score.map_truth``)::
 
 from __future__ import annotations
 
-import json
 from typing import Any, Final
 
 from scenarios.replay.foxglove_messages import foxglove_time, stamp_ns
@@ -33,11 +32,6 @@ SCHEMA: Final[dict[str, Any]] = {
     },
     "required": ["timestamp", "phantom_cells", "forgotten_cells", "unknown_share"],
 }
-
-
-def map_truth_schema_text() -> bytes:
-    """The JSON text of ``fleetmap.MapTruth`` for an MCAP Schema record."""
-    return json.dumps(SCHEMA, separators=(",", ":")).encode()
 
 
 def map_truth_message(sample: MapTruthSample) -> dict[str, Any]:

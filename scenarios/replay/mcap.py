@@ -1,24 +1,10 @@
 """``replay.mcap``: a run for Foxglove (docs/files.md), and its scans back for ``fleetmap replay``.
 
-Every message is JSON with a Foxglove JSON schema (``foxglove_schemas``), stamped with sim
-time in nanoseconds (log and publish time alike), written in time order:
-
-======================  =====================  ==========================================
-topic                   schema                 one message per
-======================  =====================  ==========================================
-``/units/<id>/scan``    foxglove.LaserScan     recorded scan (ranges: ``foxglove_messages``)
-``/units/<id>/plan``    foxglove.PosesInFrame  plan the unit made
-``/map/occupancy``      foxglove.Grid          grid sample (int8 field ``occupancy``)
-``/map/costmap``        foxglove.Grid          grid sample (uint8 field ``cost``)
-``/scene``              foxglove.SceneUpdate   stamp with unit samples (entities
-                                               ``unit/<id>``), objects sample (entities
-                                               ``object/<id>``, deletions for the gone)
-``/log``                foxglove.Log           event, freeze, recovery action, stale-free
-                                               plan, collision (``replay_log``)
-``/fleetmap/scans``     fleetmap.FusedScan     scan the run's server fused, exactly
-                                               (``replay_fused``)
-``/metrics/map_truth``  fleetmap.MapTruth      map read (``map_truth_channel``)
-======================  =====================  ==========================================
+Every message is JSON with a JSON schema, stamped with sim time in nanoseconds (log and
+publish time alike), written in time order: the viewing channels of ``replay_channels``
+(scans, plans, occupancy and coloured costmap, scene, ``/tf``, log, ``/metrics``,
+``/metrics/map_truth``), built there from the record, and ``/fleetmap/scans``
+(``fleetmap.FusedScan``, every scan the run's server fused, exactly: ``replay_fused``).
 
 A scan channel's metadata carries what ``foxglove.LaserScan`` has no field for:
 ``unit_id``, ``range_min``, ``range_max`` [m], ``angle_increment`` [rad] and ``pose_std_xy``
@@ -40,8 +26,6 @@ from __future__ import annotations
 import heapq
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
-from itertools import groupby
 from operator import attrgetter, itemgetter
 from pathlib import Path
 from typing import Any
@@ -49,34 +33,37 @@ from typing import Any
 import orjson
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel
+from mcap.records import Channel as McapChannel
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 
-from fleet.unit import DriveLimits
 from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.store.atomic import atomic_output
-from scenarios.replay.foxglove_messages import (
-    Message,
-    decode_ranges,
-    deletion,
-    grid,
-    laser_scan,
-    log,
-    object_entity,
-    object_entity_id,
-    planar_pose,
-    poses_in_frame,
-    scene_update,
-    seconds_of,
-    stamp_ns,
-    unit_entity,
+from scenarios.replay.channels import (
+    COSTMAP_TOPIC,
+    LOG_TOPIC,
+    OCCUPANCY_TOPIC,
+    SCENE_TOPIC,
+    TF_TOPIC,
+    Channel,
+    Item,
+    SceneObjects,
+    encode,
+    grid_items,
+    log_items,
+    map_truth_items,
+    metrics_items,
+    plan_items,
+    plan_topic,
+    scan_items,
+    scan_topic,
+    schema_text,
+    unit_items,
 )
-from scenarios.replay.foxglove_schemas import schema_text
+from scenarios.replay.foxglove_messages import decode_ranges, planar_pose, seconds_of, stamp_ns
 from scenarios.replay.fused import (
-    FUSED_SCHEMA,
     FUSED_SCHEMA_NAME,
     FUSED_TOPIC,
     MAP_SETTINGS_METADATA,
@@ -87,31 +74,19 @@ from scenarios.replay.fused import (
     settings_of,
 )
 from scenarios.replay.log import run_log
-from scenarios.replay.map_truth_channel import (
-    MAP_TRUTH_SCHEMA,
-    MAP_TRUTH_TOPIC,
-    map_truth_message,
-    map_truth_schema_text,
-)
-from scenarios.run.record import RunRecord, ScanSample
+from scenarios.run.record import RunRecord
+
+__all__ = [
+    "COSTMAP_TOPIC", "LOG_TOPIC", "OCCUPANCY_TOPIC", "REPLAY_FILENAME", "SCENE_TOPIC",
+    "TF_TOPIC", "ReplayFileError", "plan_topic", "read_fused_replay", "read_geometry",
+    "read_scans", "scan_topic", "write_replay",
+]  # fmt: skip
 
 REPLAY_FILENAME = "replay.mcap"
 RUN_METADATA = "fleetmap.run"
-OCCUPANCY_TOPIC = "/map/occupancy"
-COSTMAP_TOPIC = "/map/costmap"
-SCENE_TOPIC = "/scene"
-LOG_TOPIC = "/log"
 LIBRARY = "fleetmap"
 
 _by_stamp = attrgetter("stamp")
-
-
-def scan_topic(unit_id: str) -> str:
-    return f"/units/{unit_id}/scan"
-
-
-def plan_topic(unit_id: str) -> str:
-    return f"/units/{unit_id}/plan"
 
 
 class ReplayFileError(FleetmapError, ValueError):
@@ -119,23 +94,7 @@ class ReplayFileError(FleetmapError, ValueError):
     names the file and what was wrong."""
 
 
-@dataclass(frozen=True)
-class _Channel:
-    """A channel to write: topic, schema name and metadata (sorted key-value pairs)."""
-
-    topic: str
-    schema: str
-    metadata: tuple[tuple[str, str], ...] = ()
-
-
-_OCCUPANCY = _Channel(OCCUPANCY_TOPIC, "foxglove.Grid")
-_COSTMAP = _Channel(COSTMAP_TOPIC, "foxglove.Grid")
-_SCENE = _Channel(SCENE_TOPIC, "foxglove.SceneUpdate")
-_LOG = _Channel(LOG_TOPIC, "foxglove.Log")
-_FUSED = _Channel(FUSED_TOPIC, FUSED_SCHEMA_NAME)
-_MAP_TRUTH = _Channel(MAP_TRUTH_TOPIC, MAP_TRUTH_SCHEMA)
-
-_Item = tuple[int, _Channel, Message | bytes]  # (log time [ns], channel, message or its JSON)
+_FUSED = Channel(FUSED_TOPIC, FUSED_SCHEMA_NAME)
 
 
 def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
@@ -150,22 +109,13 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
         if record.fused is not None:
             writer.add_metadata(MAP_SETTINGS_METADATA, settings_metadata(record.fused.settings))
         schemas: dict[str, int] = {}
-        channels: dict[_Channel, int] = {}
-        streams = (
-            _scene_objects(record),
-            _grids(record),
-            _scene_units(record),
-            _scans(record),
-            _plans(record),
-            _log(record),
-            _fused(record),
-            _map_truth(record),
-        )
+        channels: dict[Channel, int] = {}
+        streams = (*viewing_items(record), _fused(record))
         for ns, channel, message in heapq.merge(*streams, key=itemgetter(0)):
             if channel not in channels:
                 if channel.schema not in schemas:
                     schemas[channel.schema] = writer.register_schema(
-                        channel.schema, SchemaEncoding.JSONSchema, _schema_text(channel.schema)
+                        channel.schema, SchemaEncoding.JSONSchema, schema_text(channel.schema)
                     )
                 channels[channel] = writer.register_channel(
                     channel.topic,
@@ -173,10 +123,7 @@ def write_replay(record: RunRecord, path: str | os.PathLike[str]) -> Path:
                     schemas[channel.schema],
                     dict(channel.metadata),
                 )
-            if isinstance(message, bytes):
-                data = message
-            else:
-                data = orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
+            data = encode(message)
             writer.add_message(channels[channel], log_time=ns, data=data, publish_time=ns)
         writer.finish()
     return Path(path)
@@ -251,87 +198,35 @@ def read_geometry(path: str | os.PathLike[str]) -> GridGeometry:
 
 
 # ------------------------------------------------------------------------------ streams
-def _scene_objects(record: RunRecord) -> Iterator[_Item]:
-    shown: set[str] = set()
-    for sample in sorted(record.objects, key=_by_stamp):
-        present = {object_entity_id(o.object_id) for o in sample.objects}
-        gone = [deletion(sample.stamp, entity) for entity in sorted(shown - present)]
-        entities = [object_entity(sample.stamp, o) for o in sample.objects]
-        yield stamp_ns(sample.stamp), _SCENE, scene_update(entities, gone)
-        shown = present
+def viewing_items(record: RunRecord) -> tuple[Iterator[Item], ...]:
+    """The viewing channels' items of a finished run (``replay_channels``), one stream per
+    kind, each in time order (the freezes scored: ``/metrics`` with its verdicts)."""
+
+    def ordered(items):
+        return sorted(items, key=_by_stamp)
+
+    return (
+        SceneObjects().items(ordered(record.objects)),
+        grid_items(ordered(record.grids), record.geometry),
+        unit_items(ordered(record.units), record.unit_radius, record.unit_height),
+        scan_items(ordered(record.scans)),
+        plan_items(ordered(record.plans)),
+        log_items(run_log(record)),
+        metrics_items(ordered(record.counters), record.freezes),
+        map_truth_items(ordered(record.map_truth)),
+    )
 
 
-def _grids(record: RunRecord) -> Iterator[_Item]:
-    for sample in sorted(record.grids, key=_by_stamp):
-        ns = stamp_ns(sample.stamp)
-        yield ns, _OCCUPANCY, grid(sample.stamp, record.geometry, sample.occupancy, "occupancy")
-        yield ns, _COSTMAP, grid(sample.stamp, record.geometry, sample.costs, "cost")
-
-
-def _scene_units(record: RunRecord) -> Iterator[_Item]:
-    default = DriveLimits()
-    radius = record.unit_radius or default.radius
-    height = record.unit_height or default.height
-    for stamp, samples in groupby(sorted(record.units, key=_by_stamp), key=_by_stamp):
-        yield stamp_ns(stamp), _SCENE, scene_update(unit_entity(u, radius, height) for u in samples)
-
-
-def _scans(record: RunRecord) -> Iterator[_Item]:
-    for scan in sorted(record.scans, key=_by_stamp):
-        yield stamp_ns(scan.stamp), _scan_channel(scan), laser_scan(scan)
-
-
-def _plans(record: RunRecord) -> Iterator[_Item]:
-    for plan in sorted(record.plans, key=_by_stamp):
-        channel = _Channel(plan_topic(plan.unit_id), "foxglove.PosesInFrame")
-        yield stamp_ns(plan.stamp), channel, poses_in_frame(plan)
-
-
-def _fused(record: RunRecord) -> Iterator[_Item]:
+def _fused(record: RunRecord) -> Iterator[Item]:
     if record.fused is None:
         return
     for seq, scan in record.fused.scans():
         yield stamp_ns(scan.stamp), _FUSED, fused_message(seq, scan)
 
 
-def _log(record: RunRecord) -> Iterator[_Item]:
-    for line in run_log(record):
-        yield stamp_ns(line.stamp), _LOG, log(line.stamp, line.level, line.name, line.message)
-
-
-def _map_truth(record: RunRecord) -> Iterator[_Item]:
-    """One ``/metrics/map_truth`` message per map read (``scenarios.replay.map_truth_channel``)."""
-    for sample in sorted(record.map_truth, key=_by_stamp):
-        yield stamp_ns(sample.stamp), _MAP_TRUTH, map_truth_message(sample)
-
-
-def _schema_text(name: str) -> bytes:
-    """A channel's schema text: the Foxglove schemas, and fleetmap's own
-    ``fleetmap.FusedScan`` and ``fleetmap.MapTruth``."""
-    if name == FUSED_SCHEMA_NAME:
-        return orjson.dumps(FUSED_SCHEMA)
-    if name == MAP_TRUTH_SCHEMA:
-        return map_truth_schema_text()
-    return schema_text(name)
-
-
 # ------------------------------------------------------------------------------ scans
-def _scan_channel(scan: ScanSample) -> _Channel:
-    std = scan.pose_std
-    metadata = {
-        "unit_id": scan.unit_id,
-        "range_min": repr(float(scan.range_min)),
-        "range_max": repr(float(scan.range_max)),
-        "angle_increment": repr(float(scan.angle_increment)),
-        "pose_std_xy": "" if std is None else repr(float(std.xy)),
-        "pose_std_yaw": "" if std is None else repr(float(std.yaw)),
-    }
-    return _Channel(scan_topic(scan.unit_id), "foxglove.LaserScan", tuple(sorted(metadata.items())))
-
-
-def scan_of(channel: Channel, message: dict[str, Any]) -> Scan:
-    """The Scan of one ``foxglove.LaserScan`` message (decoded JSON) on a channel made by
-    ``_scan_channel``."""
+def scan_of(channel: McapChannel, message: dict[str, Any]) -> Scan:
+    """The Scan of one LaserScan message on a channel made by ``replay_channels.scan_channel``."""
     meta = channel.metadata
     x, y, yaw = planar_pose(message["pose"])
     body: dict[str, Any] = {

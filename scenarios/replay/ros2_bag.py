@@ -154,7 +154,7 @@ def _translated(reader: McapReader, geometry: GridGeometry) -> Iterator[tuple[in
             values = grid_values(orjson.loads(message.data))
             yield ns, [(MAP, OCCUPANCY_GRID, occupancy_grid(ns, geometry, values))]
         elif topic == COSTMAP_TOPIC:
-            occupancy = costs_to_occupancy(grid_values(orjson.loads(message.data)))
+            occupancy = costs_to_occupancy(grid_values(orjson.loads(message.data), "cost"))
             yield ns, [(COSTMAP, OCCUPANCY_GRID, occupancy_grid(ns, geometry, occupancy))]
         elif name == "foxglove.PosesInFrame":
             unit_id = topic.removeprefix("/units/").removesuffix("/plan")

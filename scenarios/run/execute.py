@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from mapserver.store.atomic import atomic_output
 from scenarios.replay.mcap import REPLAY_FILENAME, write_replay
+from scenarios.run.observers import Observer
 from scenarios.run.runner import Progress, RunOptions, run
 from scenarios.score.collisions_json import write_collisions
 from scenarios.score.freezes_json import write_freezes
@@ -38,18 +39,23 @@ def execute(
     options: RunOptions | None = None,
     announce: Callable[[str], None] | None = None,
     overrides: Mapping[str, Any] | None = None,
+    observers: Sequence[Observer] = (),
 ) -> dict[str, object]:
     """Run the scenario at ``scenario_path`` (with ``policy`` and ``seed`` overrides) and
     write its outputs to ``out_dir``; returns the metrics. ``overrides``: dotted scenario
     keys set before validation (``{"map_server.decay.half_life_occupied": 10}``, a
-    sweep's parameters; ``load_scenario``)."""
+    sweep's parameters; ``load_scenario``); ``observers``: more observers of the episode
+    (``fleetmap run --foxglove``'s live stream)."""
     scenario = load_scenario(scenario_path, overrides)
     if policy is not None:
         scenario = scenario.with_policy(policy)
     if seed is not None:
         scenario = scenario.with_seed(seed)
     token = os.environ.get(TOKEN_ENV) if server_url else None
-    record = run(scenario, server_url, options, progress, token=token, announce=announce)
+    record = run(
+        scenario, server_url, options, progress, token=token, announce=announce,
+        observers=observers,
+    )  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_output(out / METRICS_FILENAME) as f:

@@ -7,8 +7,9 @@ episode and its last ``StepReport`` (``scenarios.run.episode``); it never change
 The standard set (``StandardObservers``): the replay's scans (every step, sampled per
 unit), plans checked against ground truth (stale-free plans), the freeze detector and
 the evidence of blocking cells, throughput, time to clear and the map against truth
-(both at every map read), unit poses for the replay and the live viewer, costmap
-snapshots and the world's objects (``replay_objects``).
+(both at every map read), the run's counters (every map read and at the end), unit
+poses for the replay and the live viewer, costmap snapshots and the world's objects
+(``replay_objects``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from mapserver.client import UnitState
 from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
 from scenarios.replay.objects import ObjectRecorder
 from scenarios.run.agents import activity
-from scenarios.run.record import GridSample, PlanSample, ScanSample, UnitSample
+from scenarios.run.record import CountersSample, GridSample, PlanSample, ScanSample, UnitSample
+from scenarios.score.collisions_json import collision_counts
 from scenarios.score.map_truth import footprints, measure, reachable_floor
 from scenarios.score.throughput import ThroughputTracker
 
@@ -198,6 +200,37 @@ class MapTruthWatch(_Observer):
         episode.record.map_truth.append(sample)
 
 
+class CountersRecorder(_Observer):
+    """The run's counters (``record.counters``, the replay's ``/metrics``) every ``every_s``
+    [s] and once more at the end, so the last sample holds the numbers of ``metrics.json``:
+    trips done (``throughput``'s), units frozen at the step, stale-free plans, collisions
+    (``collision_counts``) and scenario events so far."""
+
+    def __init__(self, throughput: Throughput, every_s: float) -> None:
+        self.throughput = throughput
+        self.every_s = every_s
+
+    def observe(self, episode: Episode) -> None:
+        record = episode.record
+        collisions = collision_counts(record)
+        record.counters.append(
+            CountersSample(
+                episode.report.now,
+                len(self.throughput.tracker.trips),
+                len(episode.report.frozen),
+                sum(1 for p in record.plans if p.stale_free),
+                collisions["collisions"],
+                collisions["scenario_collisions"],
+                len(episode.events),
+            )
+        )
+
+    def finish(self, episode: Episode) -> None:
+        last = episode.record.counters[-1] if episode.record.counters else None
+        if last is None or last.stamp != episode.report.now:
+            self.observe(episode)
+
+
 class UnitRecorder(_Observer):
     """Every unit's pose, motion, freeze and task every ``every_s`` [s] (the replay)."""
 
@@ -262,6 +295,7 @@ class StandardObservers:
     throughput: Throughput
     clearing: ClearingWatch
     map_truth: MapTruthWatch
+    counters: CountersRecorder
     units: UnitRecorder
     publisher: UnitPublisher
     grids: GridRecorder
@@ -270,13 +304,15 @@ class StandardObservers:
     @classmethod
     def of(cls, episode: Episode) -> StandardObservers:
         opts = episode.options
+        throughput = Throughput(episode)
         return cls(
             scans=ScanRecorder(opts.record_scans_s),
             plans=PlanChecker(),
             freezes=FreezeWatch(),
-            throughput=Throughput(episode),
+            throughput=throughput,
             clearing=ClearingWatch(opts.map_read_s),
             map_truth=MapTruthWatch(episode, opts.map_read_s),
+            counters=CountersRecorder(throughput, opts.map_read_s),
             units=UnitRecorder(opts.record_units_s),
             publisher=UnitPublisher(opts.record_units_s),
             grids=GridRecorder(opts.record_grids_s),
@@ -287,7 +323,8 @@ class StandardObservers:
         """In the order they run after a step."""
         return (
             self.scans, self.plans, self.freezes, self.throughput, self.clearing,
-            self.map_truth, self.units, self.publisher, self.grids, self.objects,
+            self.map_truth, self.counters, self.units, self.publisher, self.grids,
+            self.objects,
         )  # fmt: skip
 
 

@@ -110,6 +110,21 @@ class MapTruthSample:
 
 
 @dataclass(frozen=True)
+class CountersSample:
+    """The run's counters at ``stamp`` [s], as they stood then (the replay's ``/metrics``):
+    trips done, units frozen now, stale-free plans, the fleet's and the scenario's
+    collisions and the scenario events so far (counts)."""
+
+    stamp: float
+    tasks_completed: int
+    frozen_units: int
+    stale_free_plans: int
+    collisions: int
+    scenario_collisions: int
+    events: int
+
+
+@dataclass(frozen=True)
 class ScanSample:
     """A LiDAR scan as posted: the pose it was sent with and its ranges [m] (float32;
     inf = no return, NaN = invalid), and the ``pose_std`` it was sent with (None: none)."""
@@ -203,6 +218,7 @@ class RunRecord:
     objects: list[ObjectsSample] = field(default_factory=list)
     grids: list[GridSample] = field(default_factory=list)
     map_truth: list[MapTruthSample] = field(default_factory=list)
+    counters: list[CountersSample] = field(default_factory=list)
     scans: list[ScanSample] = field(default_factory=list)
     freezes: list[FreezeRecord] = field(default_factory=list)
     trips: list[TripRecord] = field(default_factory=list)

@@ -14,7 +14,7 @@ import orjson
 import pytest
 from mcap.reader import make_reader
 
-from fleet.layout import Kind, Obstacle
+from fleet.layout import DEFAULT_HEIGHT_M, Kind, Obstacle
 from fleet.shapes import Cylinder
 from fleet.world import World
 from mapserver.core.occupancy import occupancy_percent
@@ -22,6 +22,7 @@ from mapserver.core.scan import PoseStd, Scan
 from mapserver.service.replay import belief_for, journal_scans, read_settings
 from mapserver.store.offline import fuse_all
 from scenarios.cli.main import main
+from scenarios.replay.foxglove_messages import OBJECT_COLORS
 from scenarios.replay.fused import (
     FUSED_TOPIC,
     fused_message,
@@ -38,6 +39,7 @@ from scenarios.run.record import RunRecord
 from scenarios.spec.scenario import load_scenario
 
 TINY = "scenarios/tiny.yaml"
+LAYOUT = Path(__file__).resolve().parents[2] / "scenarios" / "data" / "foxglove-layout.json"
 
 
 @pytest.fixture(scope="module")
@@ -206,3 +208,95 @@ def test_a_runs_temporary_folder_goes_when_its_fused_scans_do(tiny):
     del fused
     gc.collect()
     assert not Path(folder.name).exists()
+
+
+# ------------------------------------------------------------------------------ Foxglove
+def _messages(run_dir, topic):
+    with (run_dir / REPLAY_FILENAME).open("rb") as f:
+        return [
+            (m.log_time, orjson.loads(m.data))
+            for _, _, m in make_reader(f).iter_messages(topics=[topic], log_time_order=True)
+        ]
+
+
+def test_the_scene_draws_each_obstacle_of_the_layout_with_its_pose_size_and_colour(tiny):
+    setup, _, _, run_dir = tiny
+    updates = [u for _, u in _messages(run_dir, "/scene")]
+    first = next(u for u in updates if u["entities"][0]["id"].startswith("object/"))
+    drawn = {e["id"]: e for e in first["entities"]}
+    obstacles = setup.build_layout().obstacles
+    assert set(drawn) == {f"object/{o.id}" for o in obstacles}
+    for obstacle in obstacles:
+        entity = drawn[f"object/{obstacle.id}"]
+        (cube,) = entity["cubes"]
+        height = DEFAULT_HEIGHT_M[obstacle.kind]
+        box = obstacle.shape
+        assert cube["size"] == {"x": box.size_x, "y": box.size_y, "z": height}
+        assert cube["pose"]["position"] == {"x": box.x, "y": box.y, "z": height / 2}
+        r, g, b, a = OBJECT_COLORS[obstacle.kind.value]
+        assert cube["color"] == {"r": r, "g": g, "b": b, "a": a}
+        assert {"key": "kind", "value": obstacle.kind.value} in entity["metadata"]
+    assert OBJECT_COLORS["rack"] != OBJECT_COLORS["wall"]
+
+
+def test_tf_moves_each_units_frame_with_its_recorded_pose(tiny):
+    _, record, _, run_dir = tiny
+    frames = {}
+    for ns, message in _messages(run_dir, "/tf"):
+        for t in message["transforms"]:
+            assert t["parent_frame_id"] == "map"
+            q = t["rotation"]
+            yaw = 2 * math.atan2(q["z"], q["w"])
+            frames[(ns, t["child_frame_id"])] = (t["translation"]["x"], t["translation"]["y"], yaw)
+    expected = {(round(u.stamp * 1e9), f"{u.unit_id}/base_link"): u for u in record.units}
+    assert set(frames) == set(expected) and len(frames) == 2 * 40  # 2 units every 0.5 s
+    for key, unit in expected.items():
+        x, y, yaw = frames[key]
+        assert (x, y) == (unit.x, unit.y)
+        assert math.remainder(yaw - unit.yaw, math.tau) == pytest.approx(0, abs=1e-12)
+
+
+def test_the_last_metrics_message_holds_the_runs_metrics(tiny):
+    _, record, _, run_dir = tiny
+    metrics = _messages(run_dir, "/metrics")
+    assert [ns for ns, _ in metrics] == [round(c.stamp * 1e9) for c in record.counters]
+    ns, last = metrics[-1]
+    assert ns == round(record.metrics["sim_seconds"] * 1e9)
+    for key in ("tasks_completed", "phantom_freezes", "phantom_freeze_seconds",
+                "true_block_freezes", "stale_free_plans", "collisions", "scenario_collisions",
+                "events"):  # fmt: skip
+        assert last[key] == record.metrics[key], key
+    done = [m["tasks_completed"] for _, m in metrics]
+    assert done == sorted(done) and done[-1] == len(record.trips)
+
+
+def test_the_shipped_foxglove_layout_names_only_the_replays_topics_and_fields(tiny):
+    _, _, _, run_dir = tiny
+    layout = json.loads(LAYOUT.read_text())
+    with (run_dir / REPLAY_FILENAME).open("rb") as f:
+        summary = make_reader(f).get_summary()
+    schemas = {
+        ch.topic: json.loads(summary.schemas[ch.schema_id].data) for ch in summary.channels.values()
+    }
+    panels = layout["configById"]
+    assert set(_leaves(layout["layout"])) == set(panels)
+    three_d, plots = panels["3D!fleetmap"], [v for k, v in panels.items() if k[:5] == "Plot!"]
+    named = set(three_d["topics"]) | {panels["RosOut!log"]["topicToRender"]}
+    named.add(panels["RawMessages!metrics"]["topicPath"])
+    assert {"/map/costmap", "/scene", "/metrics", "/metrics/map_truth"} <= named | {
+        p["value"].split(".")[0] for plot in plots for p in plot["paths"]
+    }
+    assert named <= set(schemas)
+    for plot in plots:
+        for path in plot["paths"]:
+            topic, field = path["value"].split(".")
+            assert field in schemas[topic]["properties"], path["value"]
+            assert schemas[topic]["properties"][field]["type"] in ("integer", "number")
+    assert three_d["topics"]["/map/costmap"]["colorMode"] == "rgba-fields"
+    assert three_d["followTf"] == "map"
+
+
+def _leaves(node):
+    if isinstance(node, str):
+        return [node]
+    return _leaves(node["first"]) + _leaves(node["second"])

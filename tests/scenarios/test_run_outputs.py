@@ -18,11 +18,13 @@ from fleet.sim import CollisionEvent
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
+from scenarios.replay.channels import SCHEMAS
+from scenarios.replay.costmap_palette import COSTMAP_RGBA
 from scenarios.replay.foxglove_messages import decode_ranges, encode_ranges
-from scenarios.replay.foxglove_schemas import SCHEMAS
 from scenarios.replay.mcap import ReplayFileError, read_geometry, read_scans, write_replay
 from scenarios.run.record import (
     BlockingCell,
+    CountersSample,
     EventRecord,
     FreezeRecord,
     GridSample,
@@ -72,8 +74,8 @@ def _grid(stamp: float, version: int) -> GridSample:
 def make_record() -> RunRecord:
     """Three units for 10 s, two object samples (a pod removed, a tote dropped), three
     grids, seven scans (two units), three plans (one stale-free), three events, two
-    freezes (u1 phantom, u2 a true-block lane freeze) and two collisions (u2 drove into
-    the tote, the person walked into u10)."""
+    freezes (u1 phantom, u2 a true-block lane freeze), two collisions (u2 drove into
+    the tote, the person walked into u10) and three counters samples."""
     record = RunRecord("moved_pod", "sticky", 7, GEOMETRY, unit_radius=0.35, unit_height=0.5)
     for i in range(21):
         t = i * 0.5
@@ -141,6 +143,11 @@ def make_record() -> RunRecord:
     record.collisions += [
         CollisionEvent(2.5, "u2", "t1", "tote", 2.1, 4.6, "fleet"),
         CollisionEvent(4.2, "u10", "h1", "person", 6.0, 1.4, "scenario"),
+    ]
+    record.counters += [
+        CountersSample(0.0, 0, 0, 0, 0, 0, 0),
+        CountersSample(4.0, 1, 1, 1, 1, 0, 3),
+        CountersSample(10.0, 4, 0, 1, 1, 1, 3),
     ]
     record.time_to_clear = {"p1": 2.25, "p9": None}
     record.metrics = {
@@ -334,7 +341,9 @@ def test_replay_holds_every_channel_with_its_foxglove_schema_and_count(record, r
         "/map/occupancy": "foxglove.Grid",
         "/map/costmap": "foxglove.Grid",
         "/scene": "foxglove.SceneUpdate",
+        "/tf": "foxglove.FrameTransforms",
         "/log": "foxglove.Log",
+        "/metrics": "fleetmap.RunMetrics",
     }
     counts = Counter(channel.topic for _, channel, _, _ in messages)
     assert counts == {
@@ -345,6 +354,8 @@ def test_replay_holds_every_channel_with_its_foxglove_schema_and_count(record, r
         "/map/occupancy": 3,
         "/map/costmap": 3,
         "/scene": 21 + 2,  # one update per unit-sample stamp, one per objects sample
+        "/tf": 21,  # one per unit-sample stamp
+        "/metrics": 3,
         "/log": 3 + 2 + 3 + 1 + 2,  # events, freezes, recovery steps, stale-free plans,
         # collisions
     }
@@ -378,19 +389,88 @@ def test_replay_grids_hold_the_recorded_arrays_at_the_map_origin(record, replay)
     _, messages = _read_all(replay)
     grids = {ch.topic: d for _, ch, _, d in messages if ch.topic.startswith("/map/")}
     last = record.grids[-1]
-    for topic, array, field, numeric_type in (
-        ("/map/costmap", last.costs, "cost", 1),  # UINT8
-        ("/map/occupancy", last.occupancy, "occupancy", 2),  # INT8
-    ):
-        message = grids[topic]
-        data = np.frombuffer(base64.b64decode(message["data"]), dtype=array.dtype)
-        assert np.array_equal(data.reshape(GEOMETRY.shape), array)
-        assert message["fields"] == [{"name": field, "offset": 0, "type": numeric_type}]
-        assert message["column_count"] == 40 and message["row_stride"] == 40
-        assert message["cell_stride"] == 1
+    costmap, occupancy = grids["/map/costmap"], grids["/map/occupancy"]
+    data = np.frombuffer(base64.b64decode(occupancy["data"]), dtype=np.int8)
+    assert np.array_equal(data.reshape(GEOMETRY.shape), last.occupancy)
+    assert occupancy["fields"] == [{"name": "occupancy", "offset": 0, "type": 2}]  # INT8
+    assert occupancy["row_stride"] == 40 and occupancy["cell_stride"] == 1
+    cells = np.frombuffer(base64.b64decode(costmap["data"]), dtype=np.uint8)
+    assert np.array_equal(cells.reshape(30, 40, 5)[..., 4], last.costs)
+    assert costmap["row_stride"] == 40 * 5 and costmap["cell_stride"] == 5
+    for message in (costmap, occupancy):
+        assert message["column_count"] == 40
         assert message["cell_size"] == {"x": 0.25, "y": 0.25}
         assert message["pose"]["position"] == {"x": -1.0, "y": -0.5, "z": 0.0}
         assert message["frame_id"] == "map"
+
+
+def test_replay_costmap_is_coloured_cell_by_cell_from_the_palette(record, replay):
+    _, messages = _read_all(replay)
+    grids = [d for _, ch, _, d in messages if ch.topic == "/map/costmap"]
+    assert [f["name"] for f in grids[0]["fields"]] == ["red", "green", "blue", "alpha", "cost"]
+    assert [(f["offset"], f["type"]) for f in grids[0]["fields"]] == [(i, 1) for i in range(5)]
+    for sample, message in zip(record.grids, grids, strict=True):
+        cells = np.frombuffer(base64.b64decode(message["data"]), dtype=np.uint8).reshape(30, 40, 5)
+        assert np.array_equal(cells[..., :4], COSTMAP_RGBA[sample.costs])
+        assert tuple(cells[0, 0]) == (112, 137, 134, 255, UNKNOWN)  # row 0: unknown
+        assert tuple(cells[10, 20]) == (255, 0, 255, 255, LETHAL)
+        assert tuple(cells[9, 20]) == (0, 255, 255, 255, INSCRIBED)
+        assert tuple(cells[20, 0]) == (0, 0, 0, 0, FREE)  # free: transparent
+        graded = 120 + sample.version
+        red = round(255 * graded / 252)
+        assert tuple(cells[8, 20]) == (red, 0, 255 - red, 255, graded)
+
+
+def test_costmap_palette_ramps_blue_to_red_and_keeps_the_special_costs_apart():
+    graded = COSTMAP_RGBA[1:253]
+    assert np.all(np.diff(graded[:, 0].astype(int)) >= 0) and graded[0, 0] == 1
+    assert graded[-1].tolist() == [255, 0, 0, 255]
+    assert np.array_equal(graded[:, 0].astype(int) + graded[:, 2], np.full(252, 255))
+    assert np.all(graded[:, 1] == 0) and np.all(graded[:, 3] == 255)
+    special = {tuple(COSTMAP_RGBA[c]) for c in (FREE, INSCRIBED, LETHAL, UNKNOWN)}
+    assert len(special) == 4 and not special & {tuple(c) for c in graded}
+    assert COSTMAP_RGBA[FREE][3] == 0 and COSTMAP_RGBA.dtype == np.uint8
+
+
+def test_replay_tf_places_each_unit_frame_at_its_recorded_pose(record, replay):
+    _, messages = _read_all(replay)
+    tf = [(m.log_time, d) for _, ch, m, d in messages if ch.topic == "/tf"]
+    expected = {}
+    for u in record.units:
+        expected.setdefault(round(u.stamp * 1e9), []).append(u)
+    assert [ns for ns, _ in tf] == sorted(expected)
+    for ns, message in tf:
+        transforms = message["transforms"]
+        assert [t["child_frame_id"] for t in transforms] == [
+            "u1/base_link", "u2/base_link", "u10/base_link"
+        ]  # fmt: skip
+        for t, u in zip(transforms, expected[ns], strict=True):
+            assert t["parent_frame_id"] == "map"
+            assert t["timestamp"] == {"sec": ns // 10**9, "nsec": ns % 10**9}
+            assert t["translation"] == {"x": u.x, "y": u.y, "z": 0.0}
+            q = t["rotation"]
+            assert (q["x"], q["y"]) == (0.0, 0.0) and q["z"] ** 2 + q["w"] ** 2 == pytest.approx(1)
+            assert 2 * math.atan2(q["z"], q["w"]) == pytest.approx(u.yaw, abs=1e-15)
+
+
+def test_replay_metrics_hold_the_counts_and_verdicts_as_they_stood(record, replay):
+    _, messages = _read_all(replay)
+    metrics = [d for _, ch, _, d in messages if ch.topic == "/metrics"]
+    assert [m.pop("timestamp") for m in metrics] == [
+        {"sec": 0, "nsec": 0}, {"sec": 4, "nsec": 0}, {"sec": 10, "nsec": 0}
+    ]  # fmt: skip
+    counts = ("tasks_completed", "frozen_units", "stale_free_plans", "collisions",
+              "scenario_collisions", "events")  # fmt: skip
+    assert [[m[k] for k in counts] for m in metrics] == [
+        [0, 0, 0, 0, 0, 0], [1, 1, 1, 1, 0, 3], [4, 0, 1, 1, 1, 3]
+    ]  # fmt: skip
+    verdicts = [(m["phantom_freezes"], m["phantom_freeze_seconds"], m["true_block_freezes"])
+                for m in metrics]  # fmt: skip
+    assert verdicts == [(0, 0, 0), (1, 0.5, 0), (1, 2.5, 1)]  # u1 phantom 3.5-6.0, u2 true 5.0
+    last = metrics[-1]
+    for key in ("tasks_completed", "stale_free_plans", "collisions", "scenario_collisions",
+                "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes"):  # fmt: skip
+        assert last[key] == record.metrics[key], key
 
 
 def test_replay_scene_shows_units_as_cylinders_and_deletes_removed_objects(replay):
