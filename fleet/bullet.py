@@ -46,10 +46,11 @@ def load_pybullet() -> ModuleType:
 
     Raises ``SimulatorMissing`` (a ``ModuleNotFoundError``) when it is not installed.
     """
-    if "pybullet" in sys.modules:
-        return sys.modules["pybullet"]
+    loaded = sys.modules.get("pybullet")
+    if loaded is not None:
+        return loaded
     try:
-        return _import_silently("pybullet")
+        return import_silently("pybullet")
     except ModuleNotFoundError as exc:
         if exc.name != "pybullet":
             raise
@@ -57,7 +58,7 @@ def load_pybullet() -> ModuleType:
         raise SimulatorMissing(INSTALL_HINT.format(version=version), name="pybullet") from None
 
 
-def _import_silently(name: str) -> ModuleType:
+def import_silently(name: str) -> ModuleType:
     """Import ``name`` with file descriptors 1 and 2 pointed at ``os.devnull``; both are
     restored whether the import succeeds or raises. A descriptor that is not open is left
     as it is."""
