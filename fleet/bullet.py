@@ -10,7 +10,8 @@ PyBullet's C code prints ``pybullet build time: ...`` (on standard error) when i
 first imported. ``load_pybullet`` points file descriptors 1 and 2 at ``os.devnull``
 around the import (flushing C's stdio buffers before pointing them back, and restoring
 them even when the import fails), so no command prints it. Meanwhile whatever another
-thread writes to either is lost too: the simulator is imported before any thread starts.
+thread writes to either is lost too, so import the simulator before starting threads
+(``fleetmap run`` and the sweep's workers import it before anything else runs).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ INSTALL_HINT = (
     "(pybullet has wheels for Python 3.11; on {version} pip builds it from source, which "
     "needs a C++ compiler)"
 )
-"""The message of ``SimulatorMissing``; ``{version}`` is the running Python's ``3.x``."""
+"""The message of ``SimulatorMissing``; ``{version}`` is the running ``Python 3.x``."""
 QUIET_FDS = (1, 2)
 """Standard output and error: PyBullet prints its banner on standard error (3.2.6), and
 either may carry it in other builds."""
