@@ -40,11 +40,13 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-import pybullet as p
 
+from fleet.bullet import load_pybullet
 from fleet.layout import Layout, Obstacle
 from fleet.shapes import Box
 from mapserver.core.scan import Pose2D
+
+p = load_pybullet()  # SimulatorMissing without the sim extra
 
 RAY_BATCH_MAX = p.MAX_RAY_INTERSECTION_BATCH_SIZE - 1
 """Rays per ``rayTestBatch`` call: 16383, the design's chunk, one below PyBullet's

@@ -6,7 +6,8 @@ level and inside functions alike, and check them against the rules.
 - nothing in ``mapserver/`` but its API (``mapserver/api/``) imports ``planner``;
 - nothing in ``mapserver/`` or ``planner/`` imports the simulator or the scenarios
   (``fleet``, ``scenarios``), except for type checking;
-- importing ``mapserver.client`` loads neither numba, PIL, sqlite3 nor fastapi.
+- importing ``mapserver.client`` loads neither numba, PIL, sqlite3 nor fastapi;
+- only ``fleet/bullet.py`` imports ``pybullet`` (the ``sim`` extra, quietly).
 """
 
 from __future__ import annotations
@@ -108,3 +109,25 @@ def test_importing_the_client_loads_no_numba_pil_sqlite3_or_fastapi():
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     ).stdout
     assert out.strip() == "[]"
+
+
+def pybullet_imports(root: Path) -> list[str]:
+    """``FILE:LINE`` of every import of ``pybullet`` below ``root`` but ``fleet/bullet.py``."""
+    found = []
+    for package in ("fleet", "mapserver", "planner", "scenarios"):
+        for path in sorted((root / package).rglob("*.py")):
+            where = path.relative_to(root).as_posix()
+            for line, module, _ in imports(path):
+                if within(module, "pybullet") and where != "fleet/bullet.py":
+                    found.append(f"{where}:{line}")
+    return found
+
+
+def test_only_fleet_bullet_imports_pybullet(tmp_path):
+    assert pybullet_imports(ROOT) == []
+    for package in ("fleet", "mapserver", "planner", "scenarios"):
+        (tmp_path / package).mkdir()
+    (tmp_path / "fleet/bullet.py").write_text("import pybullet\n")
+    (tmp_path / "fleet/world.py").write_text("import numpy\nimport pybullet as p\n")
+    (tmp_path / "scenarios/run.py").write_text("def f():\n    from pybullet import connect\n")
+    assert pybullet_imports(tmp_path) == ["fleet/world.py:2", "scenarios/run.py:2"]

@@ -80,11 +80,12 @@ def run_serve(args: argparse.Namespace) -> int:
 
 def uvicorn_config(app: Any, settings: Settings) -> Any:
     """uvicorn's config for ``app`` with the ``server`` section's bounds (timeouts [s],
-    connections), logging at WARNING through a RateLimitFilter on every handler."""
+    connections), logging at WARNING through a RateLimitFilter on every handler, without
+    the tracebacks of requests cancelled at shutdown (``cancel_log``)."""
     import uvicorn
 
     from mapserver.api.http_protocol import with_head_timeout
-    from mapserver.service import lograte
+    from mapserver.service import cancel_log, lograte
 
     server = settings.server
     config = uvicorn.Config(
@@ -103,6 +104,7 @@ def uvicorn_config(app: Any, settings: Settings) -> Any:
         handler.setFormatter(logging.Formatter("%(levelname)s:%(name)s: %(message)s"))
         logging.getLogger().addHandler(handler)
     lograte.install(server.log_burst, server.log_interval_s, ("", "uvicorn", "uvicorn.access"))
+    cancel_log.install()  # requests cancelled at the shutdown deadline: one line, no tracebacks
     return config
 
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fleet.bullet import SimulatorMissing
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
+from mapserver.version import package_version
 from scenarios.cli.export import add_export_parser
 from scenarios.cli.plan import add_plan_parser
 from scenarios.cli.run import add_run_parsers
@@ -21,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fleetmap",
         description="Shared occupancy maps for robot fleets: fuse, serve, simulate, measure.",
     )
+    parser.add_argument("--version", action="version", version=f"fleetmap {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     add_map_parser(sub)
     add_serve_parsers(sub)
@@ -35,8 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the subcommand; the simulator's commands (``run``, ``compare``, ``sweep``)
+    without PyBullet installed print one line naming the extra and exit 2."""
     args = build_parser().parse_args(argv)
-    return args.handler(args)
+    try:
+        return args.handler(args)
+    except SimulatorMissing as exc:
+        print(f"fleetmap {args.command}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
