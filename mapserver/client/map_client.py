@@ -39,6 +39,8 @@ Errors - every failure raises a subclass of ``MapClientError``; each names the e
   - ``MapProtocolError`` - a 2xx reply that breaks the contract: not JSON, a missing or
     mistyped field (replies are validated strictly by the API's own pydantic models,
     ``mapserver.api.schemas``) or header, a raw body whose size is not ``width * height``.
+    Fields the models do not know are ignored, so a newer server that adds a field to a
+    reply does not break an older client.
 
 Wire format notes:
 
@@ -460,10 +462,11 @@ class MapClient:
         params: Mapping[str, Any] | None = None,
     ) -> Reply:
         """A request whose reply is the JSON object ``model`` (a schema of the API),
-        validated strictly: a reply that breaks it is a ``MapProtocolError``."""
+        validated strictly: a reply that breaks it is a ``MapProtocolError``. Fields the
+        model does not know are dropped (a newer server may add some)."""
         response = self._send(method, path, params, payload)
         try:
-            return model.model_validate_json(response.content, strict=True)
+            return model.model_validate_json(response.content, strict=True, extra="ignore")
         except ValidationError as exc:
             raise _protocol_error(f"{method} {path}", exc, response.text) from None
 

@@ -30,8 +30,10 @@ from mapserver.client import (
     ScanAck,
     SegmentOut,
     Unauthorized,
+    UnitState,
 )
 from mapserver.core.geometry import GridGeometry
+from mapserver.core.scan import Pose2D
 from mapserver.core.scan_binary import CONTENT_TYPE as BINARY_SCAN_TYPE
 from mapserver.core.scan_binary import decode_scans, encode_batch, encode_scan
 
@@ -623,6 +625,34 @@ def test_a_mistyped_reply_field_is_a_protocol_error_carrying_the_value():
     ) as err:
         client.plan((0, 0), (1, 1))
     assert err.value.value == "yes"
+
+
+def test_fields_a_newer_server_adds_to_a_reply_are_ignored_at_every_depth():
+    reply = {
+        "units": [
+            {
+                "unit_id": "u1",
+                "stamp": 3.5,
+                "pose": {"x": 1.0, "y": 2.0, "yaw": 0.5, "z": 0.1},
+                "path": [[1.0, 2.0], [3.0, 2.0]],
+                "frozen": False,
+                "battery": 0.8,
+            }
+        ],
+        "site": "north",
+    }
+    (unit,) = replying(reply).units()
+    assert unit == UnitState.of("u1", 3.5, Pose2D(1.0, 2.0, 0.5), [(1.0, 2.0), (3.0, 2.0)])
+    assert not hasattr(unit, "battery") and not hasattr(unit.pose, "z")
+
+
+def test_a_reply_missing_a_field_is_still_a_protocol_error():
+    client = replying({"found": True, "path": [], "length": 0.0, "cost": 0.0})
+    with pytest.raises(
+        MapProtocolError,
+        match=r"field 'min_clearance' is missing \(fields present\), got \['cost', 'found', 'length', 'path'\]$",
+    ):
+        client.plan((0, 0), (1, 1))
 
 
 # ---------------------------------------------------------------------------- operations
