@@ -35,7 +35,7 @@ def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
         help="rebuild a map from a server journal or a run's replay",
         description="Replay a server's journal (its data dir or journal file) or a run's "
         "replay.mcap (its folder or the file: every scan its server fused, with its map "
-        "settings) and write map.yaml, map.pgm and logodds.npy as `map build` does.",
+        "settings) and write map.yaml, map.pgm and logodds.npy as 'fleetmap map build' does.",
     )
     replay.add_argument(
         "source", type=Path, help="server data dir, journal.sqlite3, or a run's folder/replay.mcap"
