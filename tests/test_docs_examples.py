@@ -14,6 +14,7 @@ import pytest
 from server_helpers import ServerProcess, scan_body
 
 from mapserver.client import MapClient
+from scenarios.run.embedded_server import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "external_planner.py"
@@ -56,3 +57,40 @@ def test_the_readme_shows_the_examples_plan_function_as_it_is():
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
     assert inspect.getsource(example.plan) in (ROOT / "README.md").read_text()
+
+
+def run_failing(*args: str) -> list[str]:
+    """The example's stderr lines for ``args``, which it must refuse with exit status 2."""
+    done = subprocess.run([sys.executable, str(EXAMPLE), *args],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 2 and done.stdout == "", done
+    assert "Traceback" not in done.stderr
+    return done.stderr.splitlines()
+
+
+USAGE = "usage: external_planner.py [-h] url START_X,START_Y GOAL_X,GOAL_Y [token]"
+
+
+@pytest.mark.parametrize(
+    ("args", "error"),
+    [
+        ((), "the following arguments are required: url, START_X,START_Y, GOAL_X,GOAL_Y"),
+        (("http://127.0.0.1:8700", "5,5"), "the following arguments are required: GOAL_X,GOAL_Y"),
+        (("http://127.0.0.1:8700", "5;5", "7,5"),
+         "argument START_X,START_Y: expected X,Y in metres, got '5;5'"),
+        (("localhost:8700", "5,5", "7,5"),
+         "argument url: expected http://HOST:PORT, got 'localhost:8700'"),
+    ],
+)  # fmt: skip
+def test_the_external_planner_prints_its_usage_for_bad_arguments(args, error):
+    assert run_failing(*args) == [USAGE, f"external_planner.py: error: {error}"]
+
+
+def test_the_external_planner_names_a_point_off_the_map_in_one_line(server):
+    (line,) = run_failing(server.url, "5,5", "500,5")
+    assert line.startswith("external_planner.py: error: ") and "500" in line
+
+
+def test_the_external_planner_says_in_one_line_when_no_server_answers():
+    (line,) = run_failing(f"http://127.0.0.1:{free_port()}", "5,5", "7,5")
+    assert line.startswith("external_planner.py: error: GET /v1/costmap: map server unavailable")
