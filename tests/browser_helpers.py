@@ -17,6 +17,7 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Sequence
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
@@ -52,14 +53,35 @@ def find_chromium() -> str | None:
     return None
 
 
+def chromium_or_skip() -> str:
+    """The Chromium executable; the test is skipped without one (failed under CI, whose
+    ``.ci/run`` installs it: its absence there is a broken CI)."""
+    import pytest
+
+    executable = find_chromium()
+    if executable is None:
+        message = "chromium not found: apt-get install chromium, or set FLEETMAP_CHROMIUM"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+    return executable
+
+
 class ProtocolError(RuntimeError):
     """A DevTools command failed, or a page script threw."""
 
 
 class Browser:
-    """One headless Chromium with one page; ``close()`` ends it (and its children)."""
+    """One headless Chromium with one page; ``close()`` ends it (and its children).
+    ``flags``: more command-line switches, after ``FLAGS``."""
 
-    def __init__(self, executable: str, profile_dir: Path, timeout: float = 30.0) -> None:
+    def __init__(
+        self,
+        executable: str,
+        profile_dir: Path,
+        timeout: float = 30.0,
+        flags: Sequence[str] = (),
+    ) -> None:
         self.timeout = timeout
         self.events: list[dict[str, Any]] = []
         self._replies: dict[int, dict[str, Any]] = {}
@@ -67,7 +89,7 @@ class Browser:
         self._next_id = 0
         self._stack = ExitStack()
         self.proc = subprocess.Popen(
-            [executable, *FLAGS, f"--user-data-dir={profile_dir}", "about:blank"],
+            [executable, *FLAGS, *flags, f"--user-data-dir={profile_dir}", "about:blank"],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,

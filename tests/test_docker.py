@@ -3,8 +3,12 @@
 - ``docker/Dockerfile``: base image, non-root user, ``/data`` volume, port, healthcheck,
   and its CMD, which is run here as is (host, data dir and config pointed at loopback and
   a temporary folder) against a real server, with the healthcheck's own command.
-- ``docker/compose.yaml``: parsed with PyYAML; its services, volumes, ports, tokens.
-- ``docker/server.example.yaml``: valid settings, and refused on 0.0.0.0 without tokens.
+- ``docker/compose.yaml``: parsed with PyYAML; its services, volumes, ports, tokens; and
+  its two services' commands run together on loopback as compose would run them (each
+  read from the files: the server's from the Dockerfile's CMD, the scenario's from its
+  ``command``), volumes as temporary folders, the service name as 127.0.0.1.
+- ``docker/server.example.yaml``: valid settings, refused on 0.0.0.0 without tokens, and
+  the map settings of the scenario compose runs against it.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import yaml
 from mapserver.service.settings import SettingsError, load_settings
 from scenarios.cli.main import build_parser
 from scenarios.run.embedded_server import free_port
+from scenarios.spec.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKER = ROOT / "docker"
@@ -131,7 +136,8 @@ def test_the_image_command_serves_and_passes_its_own_healthcheck(tmp_path):
         url = f"http://127.0.0.1:{port}/v1/map/meta"
         assert httpx.get(url).status_code == 401  # tokens from the environment are in force
         meta = httpx.get(url, headers={"Authorization": "Bearer reader-t"}).json()
-        assert (meta["width"], meta["resolution"], meta["policy"]) == (2000, 0.05, "decay")
+        assert (meta["width"], meta["height"], meta["resolution"]) == (400, 300, 0.1)
+        assert meta["policy"] == "decay"
     finally:
         server.terminate()
         server.wait(timeout=20)
@@ -179,10 +185,101 @@ def test_compose_runs_a_scenario_against_the_server_once_it_is_healthy():
     assert argv[argv.index("--server") + 1] == "http://mapserver:8700"
     out = argv[argv.index("--out") + 1]
     assert any(out.startswith(v.split(":")[1] + "/") for v in scenario["volumes"])
-    parser = build_parser()
-    commands = parser._subparsers._group_actions[0].choices  # argparse keeps them here
-    if "run" not in commands:
-        pytest.skip("`fleetmap run` (issue 7) is not built yet: its argv cannot be parsed")
-    args = parser.parse_args(argv[1:])
+    args = build_parser().parse_args(argv[1:])
     assert args.server == "http://mapserver:8700"
     assert (ROOT / argv[2]).is_file()
+
+
+def test_the_example_config_has_the_map_settings_of_the_scenario_compose_runs(tmp_path):
+    """``fleetmap run --server`` refuses a server whose grid is not the scenario's; the
+    scenario pins its sensor model, decay and inflation too: the example has them all."""
+    argv = compose()["services"]["scenario"]["command"]
+    pinned = load_scenario(ROOT / argv[2]).map_server.overrides()
+    served = load_settings(DOCKER / "server.example.yaml", {"data_dir": tmp_path})
+    assert {key: _dumped(getattr(served, key)) for key in pinned} == pinned
+
+
+def _dumped(value: object) -> object:
+    return value.model_dump() if hasattr(value, "model_dump") else getattr(value, "value", value)
+
+
+def test_compose_up_runs_the_scenario_to_the_end_against_the_server(tmp_path):
+    """Both services as compose runs them, on loopback: the server's command (the image's
+    CMD; its config and data from the service's volumes), healthy by the image's own
+    healthcheck, then the scenario's command (its ``--server`` the server's address here)
+    to exit 0 with its outputs in its volume and its scans in the server's map."""
+    spec = compose()
+    server, scenario = spec["services"]["mapserver"], spec["services"]["scenario"]
+    volumes = {name: tmp_path / name for name in spec["volumes"]}
+    port = free_port()
+    env = dict(os.environ, FLEETMAP_PORT=str(port), **_environment(server))
+    server_argv = _on_host(cmd_argv(), server["volumes"], volumes)
+    server_argv[server_argv.index("--host") + 1] = "127.0.0.1"
+    (tmp_path / "fleetmap-data").mkdir()
+    process = subprocess.Popen(_python(server_argv), env=env, cwd=tmp_path,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        healthy = _wait_healthy(env, process)
+        assert healthy, process.stderr.read() if process.poll() is not None else "not healthy"
+        _check_the_repository_is_the_workdir()
+        argv = _on_host(scenario["command"], scenario["volumes"], volumes)
+        url = argv[argv.index("--server") + 1]
+        assert url == f"http://mapserver:{_container_port(server)}"
+        argv[argv.index("--server") + 1] = f"http://127.0.0.1:{port}"
+        done = subprocess.run(_python(argv), env=dict(os.environ, **_environment(scenario)),
+                              cwd=ROOT, capture_output=True, text=True,
+                              timeout=600)  # fmt: skip
+        assert done.returncode == 0, done.stderr[-3000:]
+        metrics = json.loads(done.stdout.splitlines()[-1])  # --json: the metrics, last
+        out = Path(argv[argv.index("--out") + 1])
+        assert json.loads((out / "metrics.json").read_text()) == metrics
+        names = {"metrics.json", "freezes.json", "trips.json", "collisions.json",
+                 "report.png", "replay.mcap"}  # fmt: skip
+        assert names <= {p.name for p in out.iterdir()}
+        assert metrics["tasks_completed"] > 0
+        reader = {"Authorization": f"Bearer {TEST_TOKENS['FLEETMAP_READER_TOKEN']}"}
+        meta = httpx.get(f"http://127.0.0.1:{port}/v1/map/meta", headers=reader).json()
+        assert meta["version"] > 0 and meta["stamp"] > 0  # the run's scans are in its map
+    finally:
+        process.terminate()
+        process.wait(timeout=20)
+
+
+def _environment(service: dict) -> dict[str, str]:
+    """A service's ``environment`` block, interpolated with the test tokens."""
+    return {name: substitute(str(value)) for name, value in service["environment"].items()}
+
+
+def _on_host(argv: list[str], mounts: list[str], volumes: dict[str, Path]) -> list[str]:
+    """``argv`` with each container path under a mount rewritten to its host folder: a
+    named volume's folder in ``volumes``, a bind mount's source beside compose.yaml."""
+    targets = {}
+    for mount in mounts:
+        source, target = mount.split(":")[:2]
+        targets[target] = volumes[source] if source in volumes else (DOCKER / source).resolve()
+    out = []
+    for arg in argv:
+        for target, host in targets.items():
+            if arg == target or arg.startswith(target + "/"):
+                arg = str(host) + arg[len(target) :]
+        out.append(arg)
+    return out
+
+
+def _python(argv: list[str]) -> list[str]:
+    assert argv[0] == "fleetmap"
+    return [sys.executable, "-m", "scenarios.cli.main", *argv[1:]]
+
+
+def _container_port(service: dict) -> str:
+    (port,) = [p.rsplit(":", 1)[1] for p in service["ports"]]
+    return port
+
+
+def _check_the_repository_is_the_workdir() -> None:
+    """The image's COPY lines fill its WORKDIR from the repository's root, path for path,
+    so a relative path in a service's command means the same from ``ROOT``."""
+    assert len(instruction("WORKDIR")) == 1
+    for copy in instruction("COPY"):
+        *sources, dest = copy.split()
+        assert all(dest in ("./", f"./{source}") for source in sources), copy

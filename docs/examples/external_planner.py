@@ -6,9 +6,12 @@ from obstacles when it can), then asks the server whether the route is still cle
 
     python docs/examples/external_planner.py URL START_X,START_Y GOAL_X,GOAL_Y [TOKEN]
 
-prints ``{"found", "length_m", "map_version", "path", "blocked"}`` as JSON (exit 1: no path).
+prints ``{"found", "length_m", "map_version", "path", "blocked"}`` as JSON (exit 1: no path;
+exit 2 with the usage or a one-line error: bad arguments, a point off the map, a server
+that cannot be reached or refuses the token).
 """
 
+import argparse
 import json
 import sys
 
@@ -17,8 +20,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from mapserver.cli.map_build import xy_pair
 from mapserver.client import Grid, MapClient
 from mapserver.core.costvalues import INSCRIBED
+from mapserver.core.errors import FleetmapError
 
 
 def plan(costs: Grid, start: tuple[float, float], goal: tuple[float, float]) -> list:
@@ -44,19 +49,46 @@ def plan(costs: Grid, start: tuple[float, float], goal: tuple[float, float]) -> 
 
 
 def main(argv: list[str]) -> int:
-    url, start, goal = argv[1], *(tuple(map(float, a.split(","))) for a in argv[2:4])
-    with httpx.Client(base_url=url) as http:
-        client = MapClient(http, token=argv[4] if len(argv) > 4 else None)
-        costs = client.costmap()
-        path = plan(costs, start, goal)
-        if not path:
-            print(json.dumps({"found": False, "map_version": costs.version}))
-            return 1
-        steps = [(*a, *b) for a, b in zip(path, path[1:], strict=False)]
-        blocked = any(s.blocked for s in client.query_segments(steps)) if steps else False
-        length = float(np.hypot(*np.diff(np.array(path), axis=0).T).sum())
-        report = {"found": True, "length_m": round(length, 3), "map_version": costs.version}
-        print(json.dumps({**report, "path": path, "blocked": blocked}))
+    """Parse ``argv`` (usage and a one-line error, exit 2, for bad arguments), plan, and
+    print the JSON reply; a server that cannot be reached or refuses is one line, exit 2."""
+    parser = argparse.ArgumentParser(
+        prog="external_planner.py",
+        description="Plan a route on a fleetmap server's costmap and check it is clear.",
+    )
+    parser.add_argument("url", type=server_url, help="the map server: http://HOST:PORT")
+    parser.add_argument("start", type=xy_pair, metavar="START_X,START_Y", help="[m]")
+    parser.add_argument("goal", type=xy_pair, metavar="GOAL_X,GOAL_Y", help="[m]")
+    parser.add_argument("token", nargs="?", help="a reader token, if the server has tokens")
+    args = parser.parse_args(argv[1:])
+    try:
+        with httpx.Client(base_url=args.url) as http:
+            return route(MapClient(http, token=args.token), args.start, args.goal)
+    except FleetmapError as exc:
+        print(f"external_planner.py: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def server_url(text: str) -> str:
+    """argparse type: an http(s) URL with a host."""
+    parsed = httpx.URL(text) if text.startswith(("http://", "https://")) else None
+    if parsed is None or not parsed.host:
+        raise argparse.ArgumentTypeError(f"expected http://HOST:PORT, got {text!r}")
+    return text
+
+
+def route(client: MapClient, start: tuple[float, float], goal: tuple[float, float]) -> int:
+    """Plan from ``start`` to ``goal`` [m] on the client's costmap, print the reply; 1 when
+    there is no route."""
+    costs = client.costmap()
+    path = plan(costs, start, goal)
+    if not path:
+        print(json.dumps({"found": False, "map_version": costs.version}))
+        return 1
+    steps = [(*a, *b) for a, b in zip(path, path[1:], strict=False)]
+    blocked = any(s.blocked for s in client.query_segments(steps)) if steps else False
+    length = float(np.hypot(*np.diff(np.array(path), axis=0).T).sum())
+    report = {"found": True, "length_m": round(length, 3), "map_version": costs.version}
+    print(json.dumps({**report, "path": path, "blocked": blocked}))
     return 0
 
 

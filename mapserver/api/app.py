@@ -19,6 +19,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from mapserver.api import (
+    routes_docs,
     routes_maps,
     routes_ops,
     routes_plan,
@@ -28,6 +29,7 @@ from mapserver.api import (
     routes_viewer,
 )
 from mapserver.api.admission import Admission
+from mapserver.api.auth import openapi_security
 from mapserver.api.body import quote
 from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
 from mapserver.api.metrics import ServerMetrics, method_label
@@ -72,6 +74,8 @@ def create_app(
         version="1",
         description="The fleet's shared occupancy map and Nav2-compatible costmap.",
         lifespan=lifespan,
+        docs_url=None,  # routes_docs serves /docs from packaged files, not a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.service = service
@@ -95,7 +99,7 @@ def create_app(
         {"query": app.state.query_admission, "plan": app.state.plan_admission}
     )
     routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
-    for module in (*routers, routes_viewer):
+    for module in (*routers, routes_viewer, routes_docs):
         app.include_router(module.router)
     _complete_openapi(app)
     app.add_exception_handler(RequestValidationError, _validation_error)
@@ -123,8 +127,9 @@ BODY_RESPONSES = {
 
 
 def _complete_openapi(app: FastAPI) -> None:
-    """Publish the body models of the routes that read raw JSON (every POST route) and the
-    edge's refusals on every operation (so the schema lists every status it can send)."""
+    """Publish the body models of the routes that read raw JSON (every POST route), the
+    edge's refusals on every operation (so the schema lists every status it can send) and
+    the bearer scheme on the operations that need a token (``auth.openapi_security``)."""
     build = app.openapi
 
     def openapi() -> dict[str, Any]:
@@ -140,6 +145,7 @@ def _complete_openapi(app: FastAPI) -> None:
                 for method, operation in path.items():
                     edge = {**EDGE_RESPONSES, **(BODY_RESPONSES if method == "post" else {})}
                     _add_errors(operation.setdefault("responses", {}), edge)
+            openapi_security(schema)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -1,4 +1,4 @@
-"""Operations: ``/healthz`` and ``/metrics`` (``/docs`` is FastAPI's own)."""
+"""Operations: ``/healthz`` and ``/metrics`` (``/docs``: ``routes_docs``)."""
 
 from __future__ import annotations
 

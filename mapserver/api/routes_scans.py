@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, Depends, HTTPException, Request
 
 from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, parse_json, quote
@@ -86,11 +86,13 @@ INGEST = {"/v1/scans": ingest_scan, "/v1/scans/batch": ingest_batch}
 
 # The routes below document the two operations in the OpenAPI schema; requests to them are
 # answered by ``ScanIngress`` before FastAPI's router (the same handlers, less overhead).
+# Their ``dependencies`` document the admission the handlers do (for the bearer scheme).
 @router.post(
     "/v1/scans",
     response_model=ScanAck,
     responses=ERRORS,
     openapi_extra=body_schema(ScanIn, CONTENT_TYPE),
+    dependencies=[Depends(ADMIT_WRITE)],
     summary="Post one scan; durable once acknowledged",
 )
 async def post_scan(request: Request) -> dict[str, int]:
@@ -102,6 +104,7 @@ async def post_scan(request: Request) -> dict[str, int]:
     response_model=ScanBatchAck,
     responses=ERRORS,
     openapi_extra=body_schema(ScanBatchIn, CONTENT_TYPE),
+    dependencies=[Depends(ADMIT_WRITE)],
     summary="Post several scans; all are accepted or none",
 )
 async def post_scans(request: Request) -> dict[str, list[dict[str, int]]]:

@@ -35,7 +35,7 @@ def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
         help="rebuild a map from a server journal or a run's replay",
         description="Replay a server's journal (its data dir or journal file) or a run's "
         "replay.mcap (its folder or the file: every scan its server fused, with its map "
-        "settings) and write map.yaml, map.pgm and logodds.npy as `map build` does.",
+        "settings) and write map.yaml, map.pgm and logodds.npy as 'fleetmap map build' does.",
     )
     replay.add_argument(
         "source", type=Path, help="server data dir, journal.sqlite3, or a run's folder/replay.mcap"
@@ -65,17 +65,33 @@ def run_serve(args: argparse.Namespace) -> int:
     except (SettingsError, DataDirError, JournalError) as exc:
         print(f"fleetmap serve: error: {exc}", file=sys.stderr)
         return 2
-    if settings.open_access:
-        print(
-            f"fleetmap serve: no tokens configured: the server is open to every client "
-            f"and bound to loopback ({settings.host}) only",
-            file=sys.stderr,
-        )
     # The ingest thread fuses in numba with the GIL released; a short switch interval lets
     # it take the GIL back promptly from the busy event loop (Python's default is 5 ms).
     sys.setswitchinterval(0.0005)
-    uvicorn.Server(uvicorn_config(app, settings)).run()
+
+    class AnnouncedServer(uvicorn.Server):
+        """uvicorn's server, saying where it listens once it does (the port it got)."""
+
+        async def startup(self, sockets: Any = None) -> None:
+            await super().startup(sockets)
+            if self.started and not self.should_exit:
+                port = self.servers[0].sockets[0].getsockname()[1]
+                print(listening_line(settings, port), file=sys.stderr, flush=True)
+
+    AnnouncedServer(uvicorn_config(app, settings)).run()
     return 0
+
+
+def listening_line(settings: Settings, port: int) -> str:
+    """The one line ``serve`` prints once it listens: its address (the viewer's URL), the
+    API docs, and whether tokens are on (how many) or the server is open, loopback only."""
+    host = f"[{settings.host}]" if ":" in settings.host else settings.host
+    url = f"http://{host}:{port}/"
+    if settings.open_access:
+        tokens = "tokens: off - open to every client, loopback only"
+    else:
+        tokens = f"tokens: on ({len(settings.tokens)})"
+    return f"fleetmap serve: listening on {url} (viewer; API docs at {url}docs); {tokens}"
 
 
 def uvicorn_config(app: Any, settings: Settings) -> Any:

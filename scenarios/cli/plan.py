@@ -23,11 +23,14 @@ from planner.grid_search import ALGORITHMS, GridPlanner, PlanRequestError
 
 def add_plan_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "plan", help="plan on a saved map", description=__doc__.splitlines()[0]
+        "plan",
+        help="plan on a saved map",
+        description="Plan a path on a saved map (a ROS map YAML): its occupied cells are "
+        "inflated as the server's costmap would be, then searched from --start to --goal.",
     )
     parser.add_argument("map", type=Path, help="ROS map YAML")
-    parser.add_argument("--start", type=xy_pair, required=True, help="X,Y [m]")
-    parser.add_argument("--goal", type=xy_pair, required=True, help="X,Y [m]")
+    parser.add_argument("--start", type=xy_pair, required=True, metavar="X,Y", help="[m]")
+    parser.add_argument("--goal", type=xy_pair, required=True, metavar="X,Y", help="[m]")
     parser.add_argument("--algorithm", choices=ALGORITHMS, default="astar")
     parser.add_argument(
         "--no-unknown", action="store_true", help="never plan through unknown cells"

@@ -126,9 +126,12 @@ def _cell(value: object, fine: bool = False) -> str:
 
 
 def _progress_bar(label: str):
-    """A one-line progress bar on stderr (only when it is a terminal)."""
+    """A one-line progress bar on stderr when it is a terminal, else a line now and then
+    (``SimProgress``)."""
     if not sys.stderr.isatty():
-        return None
+        from scenarios.sweep.progress import SimProgress
+
+        return SimProgress(label)
     width = max(10, min(40, os.get_terminal_size(sys.stderr.fileno()).columns - 40))
 
     def show(now: float, total: float) -> None:

@@ -31,14 +31,16 @@ def add_sweep_parser(subparsers: argparse._SubParsersAction) -> None:
         help="run on the Ray cluster at ADDRESS ('local' starts one; needs fleetmap[ray])",
     )
     sweep.add_argument("--out", type=Path, default=Path("out/sweep"), help="output folder")
+    add_progress_argument(sweep)
     sweep.set_defaults(handler=run_sweep_command)
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
     """The ``sweep`` handler: 0 when every run succeeded, 1 when some failed, 2 when the
     sweep could not start (bad file, Ray missing)."""
-    from scenarios.sweep.parallel import MissingExtraError, import_ray, progress_printer, run_sweep
+    from scenarios.sweep.parallel import MissingExtraError, import_ray, run_sweep
     from scenarios.sweep.pareto import PARETO_FILENAME, write_pareto
+    from scenarios.sweep.progress import RunProgress
     from scenarios.sweep.results import PLOT_FILENAME, RESULTS_FILENAME, write_csv, write_plot
     from scenarios.sweep.sweep_file import ScenarioError, expand, load_sweep
 
@@ -53,8 +55,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     where = f"Ray at {args.ray}" if args.ray is not None else "local processes"
     print(f"fleetmap sweep: {len(runs)} runs on {where}", file=sys.stderr, flush=True)
     try:
+        progress = RunProgress(len(runs), every_s=args.progress_every)
         results = run_sweep(
-            runs, args.out, args.workers, args.ray, on_result=progress_printer(len(runs))
+            runs, args.out, args.workers, args.ray, on_result=progress, on_wait=progress.tick
         )
     except MissingExtraError as exc:
         print(f"fleetmap sweep: error: {exc}", file=sys.stderr)
@@ -67,6 +70,26 @@ def run_sweep_command(args: argparse.Namespace) -> int:
           f"{args.out / RESULTS_FILENAME}, {args.out / PLOT_FILENAME}, "
           f"{args.out / PARETO_FILENAME} ({front} non-dominated settings)")  # fmt: skip
     return 1 if failed else 0
+
+
+def add_progress_argument(parser: argparse.ArgumentParser) -> None:
+    """``--progress-every SECONDS``: the longest silence between progress lines."""
+    from scenarios.sweep.progress import DEFAULT_EVERY_S
+
+    parser.add_argument("--progress-every", type=positive_float, default=DEFAULT_EVERY_S,
+                        metavar="SECONDS", help="print a progress line at least this often "
+                        f"while runs go on (default: {DEFAULT_EVERY_S:g})")  # fmt: skip
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {value:g}")
+    return value
 
 
 def positive_int(text: str) -> int:

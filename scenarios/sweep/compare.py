@@ -6,9 +6,9 @@ runner (``scenarios.sweep.parallel``), then one table per scenario
 Seeds are 0 .. N-1. Outputs: ``DIR/compare.csv`` (one row per run, the columns of a
 sweep's results.csv), ``DIR/compare.md`` (the tables, also printed) and each run's own
 outputs in ``DIR/<scenario>/<policy>/seed<k>``. Progress lines go to stdout, flushed, as
-runs finish. Exit status: 0 when every run succeeded, 1 when some failed (they are
-listed; the others are still in the tables), 2 when nothing could start (a bad scenario
-file or policy).
+runs finish, with a heartbeat between them (``--progress-every``; ``progress``). Exit
+status: 0 when every run succeeded, 1 when some failed (they are listed; the others are
+still in the tables), 2 when nothing could start (a bad scenario file or policy).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ DEFAULT_POLICIES = ",".join(p.value for p in Policy)
 
 def add_compare_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``compare``."""
-    from scenarios.cli.sweep import positive_int
+    from scenarios.cli.sweep import add_progress_argument, positive_int
 
     compare = subparsers.add_parser(
         "compare",
@@ -47,6 +47,7 @@ def add_compare_parser(subparsers: argparse._SubParsersAction) -> None:
     compare.add_argument("--out", type=Path, default=Path("out/compare"), help="output folder")
     compare.add_argument("--workers", type=positive_int, default=None,
                          help="parallel runs (default: CPU count)")  # fmt: skip
+    add_progress_argument(compare)
     compare.set_defaults(handler=run_compare)
 
 
@@ -73,7 +74,8 @@ def run_compare(args: argparse.Namespace) -> int:
     """The ``compare`` handler (module docstring for the exit status)."""
     from mapserver.store.atomic import atomic_output
     from scenarios.sweep.compare_table import compare_markdown
-    from scenarios.sweep.parallel import progress_printer, run_sweep
+    from scenarios.sweep.parallel import run_sweep
+    from scenarios.sweep.progress import RunProgress
     from scenarios.sweep.results import write_csv
     from scenarios.sweep.sweep_file import ScenarioError, Sweep, check_sweep, expand
 
@@ -88,9 +90,8 @@ def run_compare(args: argparse.Namespace) -> int:
     runs = expand(sweep)
     print(f"fleetmap compare: {len(runs)} runs ({len(paths)} scenario(s) x {len(policies)} "
           f"policies x {args.seeds} seed(s)) in local processes", flush=True)  # fmt: skip
-    results = run_sweep(
-        runs, args.out, args.workers, on_result=progress_printer(len(runs), sys.stdout)
-    )
+    progress = RunProgress(len(runs), sys.stdout, args.progress_every)
+    results = run_sweep(runs, args.out, args.workers, on_result=progress, on_wait=progress.tick)
     out = Path(args.out)
     write_csv(sweep, results, out / CSV_FILENAME)
     text = compare_markdown(results, [p.stem for p in paths], policies, args.seeds)

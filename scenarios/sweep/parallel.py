@@ -10,21 +10,22 @@ cluster it must be a shared filesystem.
 
 A run that fails (an exception in ``execute``, or a worker that dies) becomes a
 ``RunResult`` with status ``error`` and the message; the sweep goes on. ``on_result``
-sees each result as it finishes (in finishing order); the returned list is in run order.
+sees each result as it finishes (in finishing order), ``on_wait`` is called every
+``WAIT_S`` while none does (``progress.RunProgress`` prints from both); the returned list
+is in run order.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
-import sys
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from mapserver.core.errors import FleetmapError
 from scenarios.sweep.sweep_file import SweepRun
@@ -34,11 +35,12 @@ __all__ = [
     "RunResult",
     "execute_run",
     "import_ray",
-    "progress_printer",
     "run_sweep",
 ]
 
 RAY_EXTRA = "ray"
+WAIT_S = 1.0
+"""[s] how often ``run_sweep`` calls ``on_wait`` while no run finishes."""
 
 
 class MissingExtraError(FleetmapError, RuntimeError):
@@ -82,6 +84,7 @@ def run_sweep(
     workers: int | None = None,
     ray_address: str | None = None,
     on_result: Callable[[RunResult], None] | None = None,
+    on_wait: Callable[[], None] | None = None,
 ) -> list[RunResult]:
     """Run every run (see the module docstring); ``workers``: processes of the local
     pool (default ``os.cpu_count()``; ignored with Ray). Returns results in run order."""
@@ -89,8 +92,8 @@ def run_sweep(
         raise ValueError(f"workers must be >= 1, got {workers}")
     out_dir = Path(out_dir).resolve()
     if ray_address is not None:
-        return _run_ray(runs, out_dir, ray_address, on_result)
-    return _run_pool(runs, out_dir, workers or os.cpu_count() or 1, on_result)
+        return _run_ray(runs, out_dir, ray_address, on_result, on_wait)
+    return _run_pool(runs, out_dir, workers or os.cpu_count() or 1, on_result, on_wait)
 
 
 def _run_pool(
@@ -98,6 +101,7 @@ def _run_pool(
     out_dir: Path,
     workers: int,
     on_result: Callable[[RunResult], None] | None,
+    on_wait: Callable[[], None] | None,
 ) -> list[RunResult]:
     results: list[RunResult | None] = [None] * len(runs)
     context = multiprocessing.get_context("spawn")
@@ -108,7 +112,9 @@ def _run_pool(
             pool.submit(execute_run, run, out_dir): i for i, run in enumerate(runs)
         }
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, timeout=WAIT_S, return_when=FIRST_COMPLETED)
+            if not done and on_wait is not None:
+                on_wait()
             for future in done:
                 i = pending.pop(future)
                 try:
@@ -120,22 +126,6 @@ def _run_pool(
                 if on_result is not None:
                     on_result(result)
     return [r for r in results if r is not None]
-
-
-def progress_printer(total: int, stream: TextIO | None = None) -> Callable[[RunResult], None]:
-    """An ``on_result`` that prints ``[k/total] <run folder> ok (12.3 s)`` (or ``FAILED:
-    <error>``) to ``stream`` (default stderr) as each run finishes, flushed at once so a
-    pipe or a log file shows it then."""
-    finished = 0
-
-    def report(result: RunResult) -> None:
-        nonlocal finished
-        finished += 1
-        state = "ok" if result.status == "ok" else f"FAILED: {result.error}"
-        print(f"[{finished}/{total}] {result.run.label()} {state} "
-              f"({result.wall_seconds:.1f} s)", file=stream or sys.stderr, flush=True)  # fmt: skip
-
-    return report
 
 
 def import_ray() -> Any:
@@ -155,6 +145,7 @@ def _run_ray(
     out_dir: Path,
     address: str,
     on_result: Callable[[RunResult], None] | None,
+    on_wait: Callable[[], None] | None,
 ) -> list[RunResult]:
     ray = import_ray()
     started = not ray.is_initialized()
@@ -165,7 +156,9 @@ def _run_ray(
         pending = {task.remote(run, out_dir): i for i, run in enumerate(runs)}
         results: list[RunResult | None] = [None] * len(runs)
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_S)
+            if not done and on_wait is not None:
+                on_wait()
             for ref in done:
                 i = pending.pop(ref)
                 try:

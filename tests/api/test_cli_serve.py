@@ -1,8 +1,16 @@
-"""``fleetmap serve`` refusals and ``fleetmap replay`` from a server's journal."""
+"""``fleetmap serve``: refusals, and the line it prints once it listens; ``fleetmap replay``
+from a server's journal."""
 
 import json
+import queue
+import re
+import subprocess
+import sys
+import threading
 
+import httpx
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from server_helpers import scan_body, small_settings
 
@@ -56,3 +64,53 @@ def test_replay_rebuilds_the_servers_map_from_its_journal(tmp_path, capsys):
 def test_replay_of_something_else_is_a_clear_error(tmp_path, capsys):
     assert main(["replay", str(tmp_path)]) == 2
     assert "not a map server's settings" in capsys.readouterr().err
+
+
+def serve_until_listening(tmp_path, *flags: str) -> tuple[subprocess.Popen, str]:
+    """``fleetmap serve --port 0`` in a subprocess; it and its first stderr line that says
+    where it listens (after any warnings)."""
+    command = [sys.executable, "-m", "scenarios.cli.main", "serve", "--port", "0",
+               "--data-dir", str(tmp_path / "data"), *flags]  # fmt: skip
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(
+        target=lambda: [lines.put(line) for line in server.stderr], daemon=True
+    ).start()
+    try:
+        while True:
+            line = lines.get(timeout=60)
+            if "listening on" in line:
+                return server, line.rstrip("\n")
+    except BaseException:
+        server.kill()
+        raise
+
+
+@pytest.mark.parametrize(
+    ("tokens", "said"),
+    [
+        (None, "tokens: off - open to every client, loopback only"),
+        ([{"token": "u", "role": "unit", "units": ["*"]}, {"token": "r", "role": "reader"},
+          {"token": "a", "role": "admin"}], "tokens: on (3)"),
+    ],
+)  # fmt: skip
+def test_serve_says_where_it_listens_and_whether_tokens_are_on(tmp_path, tokens, said):
+    flags = []
+    if tokens is not None:
+        (tmp_path / "server.yaml").write_text(json.dumps({"tokens": tokens}))
+        flags = ["--config", str(tmp_path / "server.yaml")]
+    server, line = serve_until_listening(tmp_path, *flags)
+    try:
+        match = re.fullmatch(
+            r"fleetmap serve: listening on (http://127\.0\.0\.1:(\d+)/) \(viewer; API docs at "
+            r"\1docs\); (.*)",
+            line,
+        )
+        assert match, line
+        url, port, tokens_said = match.groups()
+        assert int(port) > 0 and tokens_said == said  # --port 0: the port it got
+        assert httpx.get(url + "healthz").json()["status"] == "ok"
+        assert httpx.get(url + "docs").status_code == 200
+    finally:
+        server.terminate()
+        server.wait(timeout=20)

@@ -7,13 +7,12 @@ with the palette the server's PNG replies use.
 """
 
 import json
-import os
 import re
 
 import httpx
 import numpy as np
 import pytest
-from browser_helpers import Browser, find_chromium
+from browser_helpers import Browser, chromium_or_skip
 from server_helpers import ServerProcess, scan_body
 
 from mapserver.api.render import cost_palette, occupancy_palette
@@ -34,13 +33,7 @@ def rgba(palette: np.ndarray, value: int) -> list[int]:
 
 @pytest.fixture(scope="module")
 def chromium():
-    executable = find_chromium()
-    if executable is None:
-        message = "chromium not found: apt-get install chromium, or set FLEETMAP_CHROMIUM"
-        if os.environ.get("CI"):
-            pytest.fail(message)  # CI installs it (.ci/run): its absence is a broken CI
-        pytest.skip(message)
-    return executable
+    return chromium_or_skip()
 
 
 @pytest.fixture(scope="module")

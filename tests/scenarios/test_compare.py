@@ -160,7 +160,7 @@ def test_compare_runs_every_seed_and_writes_csv_and_tables(
 def test_a_failed_run_is_listed_and_exits_one(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    def fake_run_sweep(runs, out_dir, workers=None, on_result=None):  # noqa: ANN001, ANN202
+    def fake_run_sweep(runs, out_dir, workers=None, on_result=None, on_wait=None):  # noqa: ANN001, ANN202
         results = [
             RunResult(runs[0], "ok", out_dir, {"phantom_freeze_seconds": 2.0}),
             RunResult(runs[1], "error", out_dir, error="RuntimeError: server died"),
