@@ -650,7 +650,8 @@ def test_a_reply_missing_a_field_is_still_a_protocol_error():
     client = replying({"found": True, "path": [], "length": 0.0, "cost": 0.0})
     with pytest.raises(
         MapProtocolError,
-        match=r"field 'min_clearance' is missing \(fields present\), got \['cost', 'found', 'length', 'path'\]$",
+        match=r"field 'min_clearance' is missing \(fields present\), "
+        r"got \['cost', 'found', 'length', 'path'\]$",
     ):
         client.plan((0, 0), (1, 1))
 
