@@ -28,10 +28,11 @@ from mapserver.core.errors import FleetmapError
 
 INSTALL_HINT = (
     "the simulator needs pybullet, which is not installed: pip install 'fleetmap[sim]' "
-    "(pybullet has wheels for Python 3.11; on {version} pip builds it from source, which "
-    "needs a C++ compiler)"
+    "(pybullet has wheels for Python 3.11{source})"
 )
-"""The message of ``SimulatorMissing``; ``{version}`` is the running ``Python 3.x``."""
+"""The message of ``SimulatorMissing``; ``{source}`` is ``SOURCE_BUILD`` on Python 3.12+."""
+SOURCE_BUILD = "; on {version} pip builds it from source, which needs a C++ compiler"
+"""The hint's tail where no wheel exists; ``{version}`` is the running ``Python 3.x``."""
 QUIET_FDS = (1, 2)
 """Standard output and error: PyBullet prints its banner on standard error (3.2.6), and
 either may carry it in other builds."""
@@ -55,8 +56,17 @@ def load_pybullet() -> ModuleType:
     except ModuleNotFoundError as exc:
         if exc.name != "pybullet":
             raise
-        version = f"Python {sys.version_info.major}.{sys.version_info.minor}"
-        raise SimulatorMissing(INSTALL_HINT.format(version=version), name="pybullet") from None
+        raise SimulatorMissing(install_hint(sys.version_info[:2]), name="pybullet") from None
+
+
+def install_hint(version: tuple[int, int]) -> str:
+    """``SimulatorMissing``'s message on Python ``version`` (major, minor)."""
+    source = (
+        ""
+        if version < (3, 12)
+        else SOURCE_BUILD.format(version=f"Python {version[0]}.{version[1]}")
+    )
+    return INSTALL_HINT.format(source=source)
 
 
 def import_silently(name: str) -> ModuleType:

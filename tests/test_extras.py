@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from fleet.bullet import SimulatorMissing, import_silently, load_pybullet
+from fleet.bullet import SimulatorMissing, import_silently, install_hint, load_pybullet
 from mapserver import version as version_module
 from mapserver.version import UNKNOWN, package_version, source_version
 
@@ -25,11 +25,26 @@ ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT_VERSION = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
 NO_PYBULLET = "import sys; sys.modules['pybullet'] = None\n"
 MAIN = "from scenarios.cli.main import main\nsys.exit(main(sys.argv[1:]))\n"
-SIM_ERROR = (
+SIM_ERROR_311 = (
     "the simulator needs pybullet, which is not installed: pip install 'fleetmap[sim]' "
-    "(pybullet has wheels for Python 3.11; on Python {v} pip builds it from source, which "
+    "(pybullet has wheels for Python 3.11)"
+)
+SIM_ERROR_312 = (
+    "the simulator needs pybullet, which is not installed: pip install 'fleetmap[sim]' "
+    "(pybullet has wheels for Python 3.11; on Python 3.12 pip builds it from source, which "
     "needs a C++ compiler)"
-).format(v=f"{sys.version_info.major}.{sys.version_info.minor}")
+)
+SIM_ERROR = (
+    SIM_ERROR_311
+    if sys.version_info < (3, 12)
+    else install_hint((3, 12)).replace("3.12", f"{sys.version_info.major}.{sys.version_info.minor}")
+)
+
+
+def test_the_install_hint_mentions_a_source_build_only_where_no_wheel_exists():
+    assert install_hint((3, 11)) == SIM_ERROR_311
+    assert install_hint((3, 12)) == SIM_ERROR_312
+    assert install_hint((3, 13)) == SIM_ERROR_312.replace("3.12", "3.13")
 
 
 def python(code: str, *args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:

@@ -12,9 +12,10 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from scenarios.sweep.parallel import RunResult
+if TYPE_CHECKING:  # parallel imports the scenario spec, and so the simulator
+    from scenarios.sweep.parallel import RunResult
 
 DEFAULT_EVERY_S = 10.0
 """[s] the longest silence between two progress lines."""
