@@ -136,6 +136,12 @@ class Episode:
             raise ValueError(
                 f"server: its grid {meta.geometry} is not the scenario's {self.geometry}"
             )
+        if meta.stamp is not None:
+            raise ValueError(
+                f"server: its map already holds scans up to stamp {meta.stamp:g} s, and a "
+                "run's units stamp their scans in sim time from 0 s: run against a server "
+                "with an empty map (a new data dir; with docker compose, `down -v` first)"
+            )
         self._extra = tuple(extra_observers)
         self.world: World | None = None
 

@@ -3,9 +3,12 @@
 import json
 from dataclasses import replace
 
+import httpx
 import pytest
+from conftest import make_scan
 from mcap.reader import make_reader
 
+from mapserver.client import MapClient
 from scenarios.cli.main import main
 from scenarios.run import runner
 from scenarios.run.embedded_server import EmbeddedServer
@@ -64,6 +67,24 @@ def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert {"/map/costmap", "/map/occupancy", "/scene", "/log", "/units/u1/scan",
             "/metrics/map_truth"} <= topics  # fmt: skip
+
+
+def test_a_server_whose_map_holds_scans_is_refused_before_anything_is_sent(tmp_path, capsys):
+    scenario = load_scenario(TINY)
+    with EmbeddedServer(tmp_path / "data", scenario.server_overrides()) as server:
+        with httpx.Client(base_url=server.url, timeout=60) as http:
+            client = MapClient(http)
+            client.post_scan(make_scan([2.0] * 10, x=2.0, y=2.0, stamp=12.5))
+            before = client.map_meta().version
+            out = tmp_path / "refused"
+            assert main(["run", TINY, "--out", str(out), "--server", server.url]) == 2
+            assert client.map_meta().version == before
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "fleetmap run: error: server: its map already holds scans up to stamp 12.5 s, and a "
+        "run's units stamp their scans in sim time from 0 s: run against a server with an "
+        "empty map (a new data dir; with docker compose, `down -v` first)"
+    )
+    assert not (out / "metrics.json").exists()
 
 
 def test_same_seed_same_metrics_with_and_without_a_server(first_run, tmp_path):
