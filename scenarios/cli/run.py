@@ -46,9 +46,14 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
     run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
     run.add_argument(
-        "--foxglove", nargs="?", const=FOXGLOVE_PORT, type=_port, metavar="PORT",
-        help=f"stream the run live to Foxglove on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT}; "
-        "0: a free port); needs the 'foxglove' extra",
+        "--foxglove", action="store_true",
+        help=f"stream the run live to Foxglove on ws://127.0.0.1:{FOXGLOVE_PORT}; needs the "
+        "'foxglove' extra",
+    )  # fmt: skip
+    run.add_argument(
+        "--foxglove-port", type=_port, metavar="PORT",
+        help=f"the live stream's port instead of {FOXGLOVE_PORT} (0: a free port); implies "
+        "--foxglove",
     )  # fmt: skip
     run.set_defaults(handler=run_one)
 
@@ -57,7 +62,7 @@ def run_one(args: argparse.Namespace) -> int:
     from scenarios.run.execute import ScenarioError, execute
 
     try:
-        live = _live(args.foxglove)
+        live = _live(_foxglove_port(args))
         try:
             metrics = execute(
                 args.scenario, args.policy, args.seed, args.server, args.out,
@@ -76,6 +81,14 @@ def run_one(args: argparse.Namespace) -> int:
         print(format_table([metrics]))
         print(f"outputs in {args.out}")
     return 0
+
+
+def _foxglove_port(args: argparse.Namespace) -> int | None:
+    """The live stream's port: ``--foxglove-port``, else the default with ``--foxglove``,
+    else None (no stream)."""
+    if args.foxglove_port is not None:
+        return args.foxglove_port
+    return FOXGLOVE_PORT if args.foxglove else None
 
 
 def _live(port: int | None):

@@ -1,6 +1,6 @@
-"""``fleetmap run --foxglove[=PORT]``: the replay's viewing channels live, over the Foxglove
-WebSocket protocol on loopback, while the run goes (the SDK's server speaks the
-subprotocol ``foxglove.sdk.v1``).
+"""``fleetmap run --foxglove [--foxglove-port PORT]``: the replay's viewing channels
+live, over the Foxglove WebSocket protocol on loopback, while the run goes (the SDK's
+server speaks the subprotocol ``foxglove.sdk.v1``).
 
 The server is the Foxglove SDK's (PyPI ``foxglove-sdk``, the optional extra
 ``fleetmap[foxglove]``); ``FoxgloveLive`` is an episode observer that, after every step,

@@ -19,7 +19,8 @@ from mcap.reader import make_reader
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from scenarios.cli.main import main
+from scenarios.cli.main import build_parser, main
+from scenarios.cli.run import FOXGLOVE_PORT, _foxglove_port
 from scenarios.replay.live import FIXED_CHANNELS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -102,7 +103,7 @@ def live_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("live")
     proc = subprocess.Popen(
         [sys.executable, "-m", "scenarios.cli.main", "run", TINY, "--out", str(out),
-         "--foxglove=0"],
+         "--foxglove-port=0"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -177,7 +178,7 @@ def test_a_busy_port_fails_at_once_naming_it(tmp_path, capsys):
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        assert main(["run", TINY, "--out", str(tmp_path), f"--foxglove={port}"]) == 2
+        assert main(["run", TINY, "--out", str(tmp_path), f"--foxglove-port={port}"]) == 2
     line = _error_line(capsys)
     assert line.startswith(f"fleetmap run: error: --foxglove: cannot listen on 127.0.0.1:{port} (")
     assert list(tmp_path.iterdir()) == []
@@ -186,8 +187,18 @@ def test_a_busy_port_fails_at_once_naming_it(tmp_path, capsys):
 @pytest.mark.parametrize("port", ["70000", "-1", "http"])
 def test_a_bad_port_is_refused_naming_the_value(port, capsys):
     with pytest.raises(SystemExit) as exit_:
-        main(["run", TINY, f"--foxglove={port}"])
+        main(["run", TINY, f"--foxglove-port={port}"])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert "argument --foxglove: PORT must be an integer 0-65535, got " in err
+    assert "argument --foxglove-port: PORT must be an integer 0-65535, got " in err
     assert port in err.splitlines()[-1]
+
+
+def test_foxglove_is_a_flag_so_the_scenario_may_follow_it():
+    parser = build_parser()
+    args = parser.parse_args(["run", "--foxglove", TINY])
+    assert (args.scenario, args.foxglove, args.foxglove_port) == (Path(TINY), True, None)
+    assert _foxglove_port(args) == FOXGLOVE_PORT
+    args = parser.parse_args(["run", TINY, "--foxglove-port", "9001"])
+    assert _foxglove_port(args) == 9001  # the port alone turns the stream on
+    assert _foxglove_port(parser.parse_args(["run", TINY])) is None
