@@ -29,12 +29,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fleet.boxworld import beam_angles
-from fleet.world import World
 from mapserver.core.errors import FieldError
+
+if TYPE_CHECKING:  # the world imports PyBullet; a scenario file's LiDAR settings do not
+    from fleet.world import World
 
 RAY_START_CLEARANCE_M = 0.001
 """[m] gap between the unit's body and the start of its rays."""

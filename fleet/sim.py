@@ -46,6 +46,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,9 +55,11 @@ from fleet.localization import Localizer, PoseNoise
 from fleet.poster import ScanPoster
 from fleet.shapes import wrap_angle
 from fleet.unit import DriveLimits, DriveUnit
-from fleet.world import World
 from mapserver.client import ScanAck
 from mapserver.core.scan import Pose2D, Scan
+
+if TYPE_CHECKING:  # the world imports PyBullet; a scenario's unit specs do not need it
+    from fleet.world import World
 
 SCHEDULE_TOLERANCE = 1e-9
 """Fraction of a LiDAR period (or of a second, for world changes) by which a step may fall
@@ -72,7 +75,7 @@ COLLISION_CAUSES = ("fleet", "scenario")
 """``CollisionEvent.cause``: the fleet's driving made the contact, or the scenario moved
 something onto the unit (module docstring)."""
 
-WorldChange = Callable[[World], None]
+WorldChange = Callable[["World"], None]
 """A scheduled change: called with the world at the step that reaches its time."""
 
 

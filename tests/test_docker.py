@@ -203,6 +203,7 @@ def _dumped(value: object) -> object:
     return value.model_dump() if hasattr(value, "model_dump") else getattr(value, "value", value)
 
 
+@pytest.mark.sim  # the scenario service runs the simulator
 def test_compose_up_runs_the_scenario_to_the_end_against_the_server(tmp_path):
     """Both services as compose runs them, on loopback: the server's command (the image's
     CMD; its config and data from the service's volumes), healthy by the image's own

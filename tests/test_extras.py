@@ -100,7 +100,8 @@ def test_the_simulator_commands_without_pybullet_say_how_to_install_it(argv, tmp
 def test_without_pybullet_the_server_side_commands_work_and_never_load_it(tmp_path):
     """Every module of mapserver and planner and every command's ``--help`` load neither
     PyBullet nor the PyBullet world (with PyBullet installed this catches an import that
-    would break the server on Python 3.12+); ``map build`` and ``plan`` run."""
+    would break the server on Python 3.12+); ``map build`` and ``plan`` run, and a scenario
+    file loads (its grid and map settings configure a server)."""
     code = NO_PYBULLET + (
         "import contextlib, importlib, io, pkgutil, mapserver, planner\n"
         "for package in (mapserver, planner):\n"
@@ -114,7 +115,9 @@ def test_without_pybullet_the_server_side_commands_work_and_never_load_it(tmp_pa
         "assert main(['map', 'build', 'scenarios/data/sample_scans.jsonl', '--width', '400',\n"
         "             '--height', '200', '--resolution', '0.05', '--out', out]) == 0\n"
         "assert main(['plan', out + '/map.yaml', '--start', '1,1', '--goal', '2,1']) == 0\n"
-        "print(sorted(m for m in ('fleet.world', 'fleet.sim') if m in sys.modules))\n"
+        "from scenarios.spec.scenario import load_scenario\n"  # a scenario's grid, for a server
+        "assert load_scenario('scenarios/moved_pod.yaml').geometry().width == 400\n"
+        "print(sorted(m for m in ('fleet.world',) if m in sys.modules))\n"
     )
     proc = python(code, str(tmp_path / "map"))
     assert proc.returncode == 0, proc.stderr

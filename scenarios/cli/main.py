@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fleet.bullet import SimulatorMissing
+from fleet.bullet import SimulatorMissing, load_pybullet
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
@@ -16,6 +16,9 @@ from scenarios.cli.run import add_run_parsers
 from scenarios.cli.sweep import add_sweep_parser
 from scenarios.replay.run import run_replay
 from scenarios.sweep.compare import add_compare_parser
+
+SIMULATOR_COMMANDS = frozenset({"run", "compare", "sweep"})
+"""The subcommands that drive the simulator: checked for PyBullet before anything else."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     without PyBullet installed print one line naming the extra and exit 2."""
     args = build_parser().parse_args(argv)
     try:
+        if args.command in SIMULATOR_COMMANDS:
+            load_pybullet()  # before reading any file: runs in worker processes would fail
         return args.handler(args)
     except SimulatorMissing as exc:
         print(f"fleetmap {args.command}: error: {exc}", file=sys.stderr)

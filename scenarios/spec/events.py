@@ -36,16 +36,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import numpy as np
 from pydantic import Discriminator, Field
 
 from fleet.layout import Kind, Layout, LayoutError, Obstacle
 from fleet.shapes import Box, Cylinder
-from fleet.world import World
 from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from scenarios.spec.yaml_lines import Document, FieldPath
+
+if TYPE_CHECKING:  # the world imports PyBullet; reading a scenario file does not
+    from fleet.world import World
 
 Point = tuple[float, float]
 
