@@ -99,10 +99,10 @@ class GridPlanner:
 
     clearance_cap: [m] clearance is computed exactly up to this distance.
     landmarks: how many ALT landmarks raise the A* heuristic (``planner.landmarks``); 0,
-    the default, is the octile distance alone. Their tables (4 B per cell each) are built
+    the default, is the octile distance alone. Their tables (8 B per cell each) are built
     by one Dijkstra per landmark on the first A* plan over a costmap and reused while its
     content stays the same: worth it when many plans share one costmap, a loss when the
-    costmap changes between plans.
+    costmap changes between plans, unless the plans give ``bounds`` (``plan``).
     """
 
     def __init__(
@@ -115,6 +115,8 @@ class GridPlanner:
         self.landmarks = LandmarkHeuristic(landmarks, n)
         self._no_landmarks = np.empty((0, n), dtype=np.float32)
         self._padded = np.full((geometry.height + 2, self._wp), LETHAL, dtype=np.uint8)
+        self._padded_bounds = self._padded.copy()
+        self.bounded_plans = 0  # A* plans whose landmarks came from ``bounds``
         self._nodes = np.zeros(n, dtype=NODE)
         self._nodes["g"] = np.inf
         self._nodes["parent"] = -1
@@ -129,8 +131,18 @@ class GridPlanner:
         goal: tuple[float, float],
         algorithm: str = "astar",
         allow_unknown: bool = True,
+        bounds: np.ndarray | None = None,
     ) -> PlanResult:
-        """Plan from ``start`` to ``goal`` [m] on ``costs`` (uint8, (height, width))."""
+        """Plan from ``start`` to ``goal`` [m] on ``costs`` (uint8, (height, width)).
+
+        bounds: a costmap of the same shape no dearer than ``costs`` anywhere (each
+        cell's weight at most its weight in ``costs``, so impassable only where ``costs``
+        is), e.g. the static map's costs with unknown as free and inflated; the landmark
+        tables are then built on it and kept while it stays the same, however ``costs``
+        changes above it (Nav2 Smac caches its obstacle heuristic likewise). It is
+        checked on every plan: where it is not below ``costs`` the plan uses no landmarks
+        (the octile heuristic, as exact). Without ``bounds`` the tables follow ``costs``.
+        """
         if algorithm not in ALGORITHMS:
             raise PlanRequestError(
                 "algorithm", algorithm, f"must be one of {', '.join(ALGORITHMS)}"
@@ -153,11 +165,13 @@ class GridPlanner:
         self._padded[1:-1, 1:-1] = costs
         padded = self._padded.ravel()
         lm, lm_goal, margin = self._no_landmarks, np.empty(0), 0.0
-        if algorithm == "astar" and self.landmarks.count:
+        base = padded if bounds is None else self._lower_bounds(bounds, padded, weights)
+        if algorithm == "astar" and self.landmarks.count and base is not None:
             lm, margin = self.landmarks.tables(
-                padded, allow_unknown, weights,
-                lambda source: self._distances_from(padded, source, weights),
+                base, allow_unknown, weights,
+                lambda source: self._distances_from(base, source, weights),
             )  # fmt: skip
+            self.bounded_plans += bounds is not None
             at_goal = lm[:, cells[1]].astype(np.float64)
             lm_goal = np.where(np.isfinite(at_goal), at_goal, -np.inf)
         found, cost, expanded, touched = self._run(
@@ -186,6 +200,15 @@ class GridPlanner:
             expanded=int(expanded),
             planning_ms=planning_ms,
         )
+
+    def _lower_bounds(self, bounds, padded, weights) -> np.ndarray | None:
+        """``bounds`` padded like the costs, or None where a cell weighs more in it than
+        in ``padded`` (it would not bound the costs from below)."""
+        if bounds.shape != self.geometry.shape:
+            raise PlanRequestError("bounds", bounds.shape, f"must have shape {self.geometry.shape}")
+        self._padded_bounds[1:-1, 1:-1] = bounds
+        flat = self._padded_bounds.ravel()
+        return flat if _weighs_no_more(flat, padded, weights) else None
 
     def _run(self, padded, start, goal, weights, hscale, lm, lm_goal, margin):
         """One ``_search`` on the padded grid; returns (found, cost, expanded, touched),
@@ -386,6 +409,15 @@ def _trace_path(parent, start, goal):
         path[i] = node
         node = parent[node]
     return path
+
+
+@njit(cache=True, nogil=True)
+def _weighs_no_more(lower, costs, weights):
+    """Whether every cell weighs no more in ``lower`` than in ``costs`` (inf <= inf)."""
+    for i in range(lower.size):
+        if weights[lower[i]] > weights[costs[i]]:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True)

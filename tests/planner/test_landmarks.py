@@ -8,7 +8,7 @@ from mapserver.core.costvalues import FREE, LETHAL, UNKNOWN
 from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
 from planner.grid_reference import networkx_grid
-from planner.grid_search import GridPlanner, _heuristic
+from planner.grid_search import GridPlanner, PlanRequestError, _heuristic
 from tests.planner.test_grid_search import RES, centre, reference_cost
 
 
@@ -126,3 +126,69 @@ def test_dijkstra_ignores_the_landmarks():
 def test_a_negative_landmark_count_names_the_argument():
     with pytest.raises(FieldError, match="^landmarks must be >= 0, got -1$"):
         GridPlanner(GridGeometry(4, 4, 1.0), landmarks=-1)
+
+
+def below(costs: np.ndarray, seed: int) -> np.ndarray:
+    """A lower bound of ``costs``: the same grid with some lethal cells freed and some
+    graded costs lowered (as a static map is below the live costmap)."""
+    rng = np.random.default_rng(seed)
+    lower = costs.copy()
+    lower[(costs == LETHAL) & (rng.random(costs.shape) < 0.5)] = FREE
+    graded = costs <= 252
+    lower[graded] = (costs[graded] * rng.random(costs.shape)[graded]).astype(np.uint8)
+    lower[costs == UNKNOWN] = FREE
+    return lower
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_landmarks_on_a_lower_bound_give_optimal_plans_on_every_costmap_above_it(seed):
+    costs = graded_grid(seed)
+    lower = below(costs, seed)
+    planner = GridPlanner(GridGeometry(40, 40, RES), landmarks=4)
+    rng = np.random.default_rng(100 + seed)
+    free = np.argwhere(lower == FREE)
+    found = 0
+    for step in range(4):
+        live = costs.copy()
+        live[rng.random(costs.shape) < 0.05 * step] = LETHAL  # obstacles come and go above
+        live = np.maximum(live, lower)  # as the live costmap keeps the static map's costs
+        for _ in range(4):
+            start, goal = (tuple(int(v) for v in free[rng.integers(len(free))]) for _ in "ab")
+            live[start] = live[goal] = FREE
+            result = planner.plan(live, centre(*start), centre(*goal), bounds=lower)
+            expected = reference_cost(live, start, goal, True)
+            assert result.found == (expected is not None)
+            if result.found:
+                found += 1
+                assert result.cost == pytest.approx(expected, rel=1e-9)
+    assert (planner.landmarks.builds, planner.bounded_plans) == (1, 16)
+    assert found > 0
+
+
+def test_tables_on_bounds_survive_changes_of_the_costmap_above_them():
+    costs = graded_grid(7)
+    lower = below(costs, 7)
+    planner = GridPlanner(GridGeometry(40, 40, RES), landmarks=3)
+    live = np.maximum(costs, lower)
+    lower[0, 0] = lower[39, 39] = FREE
+    live[0, 0] = live[39, 39] = FREE
+    planner.plan(live, centre(0, 0), centre(39, 39), bounds=lower)
+    live[20, 5:15] = LETHAL  # a new obstacle in the live costmap only
+    result = planner.plan(live, centre(0, 0), centre(39, 39), bounds=lower)
+    assert planner.landmarks.builds == 1
+    expected = reference_cost(live, (0, 0), (39, 39), True)
+    assert result.found == (expected is not None)
+    if expected is not None:
+        assert result.cost == pytest.approx(expected, rel=1e-9)
+
+
+def test_bounds_dearer_than_the_costmap_somewhere_are_not_used():
+    costs = np.full((20, 20), FREE, np.uint8)
+    lower = costs.copy()
+    lower[10, 10] = LETHAL  # impassable in the bound, free in the costmap: not a lower bound
+    planner = GridPlanner(GridGeometry(20, 20, RES), landmarks=2)
+    result = planner.plan(costs, centre(0, 0), centre(19, 19), bounds=lower)
+    assert (planner.landmarks.builds, planner.bounded_plans) == (0, 0)
+    assert result.cost == pytest.approx(reference_cost(costs, (0, 0), (19, 19), True), rel=1e-9)
+    with pytest.raises(PlanRequestError, match=r"bounds: must have shape \(20, 20\), got"):
+        planner.plan(costs, centre(0, 0), centre(1, 1), bounds=lower[:5])
