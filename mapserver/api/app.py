@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from functools import partial
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -55,12 +56,16 @@ from planner.grid_search import GridPlanner
 def create_app(
     settings: Settings,
     service: MapService | None = None,
-    planner_factory: Callable[[GridGeometry], GridPlanning] = GridPlanner,
+    planner_factory: Callable[[GridGeometry], GridPlanning] | None = None,
 ) -> FastAPI:
     """The app for ``settings``; ``service`` defaults to a new MapService on its data dir;
-    ``POST /v1/plan`` plans with ``planner_factory(geometry)`` (the grid A* / Dijkstra of
-    ``planner.grid_search`` by default)."""
+    ``POST /v1/plan`` plans with ``planner_factory(geometry)`` (by default the grid A* /
+    Dijkstra of ``planner.grid_search``, with ``reads.plan_landmarks`` landmarks over the
+    static map's lower bound when the service has a static map)."""
     service = service or MapService(settings)
+    if planner_factory is None:
+        landmarks = settings.reads.plan_landmarks if service.planning_bounds is not None else 0
+        planner_factory = partial(GridPlanner, landmarks=landmarks)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

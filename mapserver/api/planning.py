@@ -27,6 +27,7 @@ class GridPlanning(Protocol):
         goal: tuple[float, float],
         algorithm: str,
         allow_unknown: bool,
+        bounds: np.ndarray | None = None,
     ) -> Any: ...
 
 
@@ -51,6 +52,8 @@ class CostmapPlanner:
         with self._lock:
             if self._planner is None:
                 self._planner = self.factory(self.service.geometry)
+            bounds = self.service.planning_bounds
+            extra = {} if bounds is None else {"bounds": bounds}
             return self._planner.plan(
-                read.data, start, goal, algorithm, allow_unknown
+                read.data, start, goal, algorithm, allow_unknown, **extra
             ), read.version

@@ -58,6 +58,7 @@ from mapserver.core.queries import (
 from mapserver.core.scan import Scan
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
+from mapserver.costmap.lower_bound import static_lower_bound
 from mapserver.service.fleet_clock import FleetClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
@@ -133,6 +134,11 @@ class MapService:
         static = settings.static_map()
         layers = [StaticLayer(static)] if static is not None else []
         inflation = InflationLayer(settings.build_inflation(), self.geometry)
+        self.planning_bounds = (
+            None
+            if static is None
+            else static_lower_bound(static, settings.build_inflation(), self.geometry)
+        )  # costs the live costmap never goes below: for planners' cached heuristics
         layers += [ObstacleLayer(self.belief), inflation]
         self.costmap = LayeredCostmap(
             self.geometry,

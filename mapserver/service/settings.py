@@ -244,6 +244,10 @@ class ReadSettings(Section):
         it; a read (costmap, updates, queries, plans) always brings it up to every
         acknowledged scan first. Scans of the same places between two refreshes are
         composed and inflated once; 0 refreshes after every group of scans.
+    plan_landmarks: ALT landmarks that raise ``POST /v1/plan``'s A* heuristic, their
+        tables built once on the static map's lower bound of the costmap
+        (``mapserver.costmap.lower_bound``) and kept while scans change the costmap
+        above it; only with a static map (``map_yaml``); 8 B per cell each; 0: none.
     """
 
     max_concurrent_queries: int = Field(default=2, gt=0)
@@ -253,6 +257,7 @@ class ReadSettings(Section):
     nice: int = Field(default=10, ge=0, le=19)
     query_busy_share: float = Field(default=0.5, gt=0, le=1)
     costmap_refresh_s: float = Field(default=0.2, ge=0, le=60)
+    plan_landmarks: int = Field(default=6, ge=0, le=32)
 
 
 class ServerSettings(Section):
