@@ -37,14 +37,14 @@ SIM_ERROR_312 = (
 SIM_ERROR = (
     SIM_ERROR_311
     if sys.version_info < (3, 12)
-    else install_hint((3, 12)).replace("3.12", f"{sys.version_info.major}.{sys.version_info.minor}")
+    else SIM_ERROR_312.replace("Python 3.12", f"Python {sys.version_info[0]}.{sys.version_info[1]}")
 )
 
 
 def test_the_install_hint_mentions_a_source_build_only_where_no_wheel_exists():
     assert install_hint((3, 11)) == SIM_ERROR_311
     assert install_hint((3, 12)) == SIM_ERROR_312
-    assert install_hint((3, 13)) == SIM_ERROR_312.replace("3.12", "3.13")
+    assert install_hint((3, 13)) == SIM_ERROR_312.replace("Python 3.12", "Python 3.13")
 
 
 def python(code: str, *args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
