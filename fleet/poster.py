@@ -14,17 +14,27 @@ the sim's, so the server must not have seen later stamps of these units (docs/ht
   ``flush`` waits for every batch and returns the remaining acks. After a failed request
   no further batch is sent, and ``post``, ``flush`` and ``close`` raise its error.
 
+With ``declare_every_s`` set, the poster also declares the simulation's clock to the
+server (``PUT /v1/clock``, as ROS's ``/clock``; docs/map-time.md) before a tick's scans
+whenever their newest stamp is that much past the last declaration, so the server judges
+the fleet's stamps against the simulation's time. A server that does not take the
+declaration (an older one: 404 or 405; a token that is not an admin's: 403) is told no
+more, and stamps are then judged by the server's own rule.
+
 Close a poster (``close`` or ``with``) to stop its worker.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 from collections.abc import Sequence
 
-from mapserver.client import MapClient, ScanAck
+from mapserver.client import MapClient, MapRequestError, ScanAck
 from mapserver.core.scan import Scan
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_MAX_BATCH = 256
 """Scans per request: the map server's default ``limits.max_batch``."""
@@ -32,17 +42,28 @@ DEFAULT_MAX_BATCH = 256
 
 class ScanPoster:
     """Sends scans through ``client`` in batches of at most ``max_batch``, with up to
-    ``in_flight`` ticks' batches on their way (module docstring)."""
+    ``in_flight`` ticks' batches on their way, declaring the simulation's clock every
+    ``declare_every_s`` [s] of its time (None: never) (module docstring)."""
 
     def __init__(
-        self, client: MapClient, max_batch: int = DEFAULT_MAX_BATCH, in_flight: int = 0
+        self,
+        client: MapClient,
+        max_batch: int = DEFAULT_MAX_BATCH,
+        in_flight: int = 0,
+        declare_every_s: float | None = None,
     ) -> None:
         for name, value, low in (("max_batch", max_batch, 1), ("in_flight", in_flight, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if declare_every_s is not None and not declare_every_s > 0:
+            raise ValueError(
+                f"declare_every_s must be > 0 seconds or None, got {declare_every_s!r}"
+            )
         self.client = client
         self.max_batch = max_batch
         self.in_flight = in_flight
+        self.declare_every_s = declare_every_s
+        self.declared: float | None = None  # [s] the clock last declared
         self.posted = 0  # scans acknowledged so far
         self._acks: list[ScanAck] = []
         self._lock = threading.Lock()
@@ -89,10 +110,29 @@ class ScanPoster:
 
     # ------------------------------------------------------------------ internals
     def _send(self, scans: Sequence[Scan]) -> list[ScanAck]:
+        self._declare_clock(scans)
         acks: list[ScanAck] = []
         for start in range(0, len(scans), self.max_batch):
             acks += self.client.post_scans(scans[start : start + self.max_batch])
         return acks
+
+    def _declare_clock(self, scans: Sequence[Scan]) -> None:
+        """Declare the newest stamp of ``scans`` as the simulation's clock when it is
+        ``declare_every_s`` past the last declaration; stop on a server that refuses."""
+        if self.declare_every_s is None or not scans:
+            return
+        now = max(scan.stamp for scan in scans)
+        if self.declared is not None and now - self.declared < self.declare_every_s:
+            return
+        try:
+            self.client.declare_clock(now)
+        except MapRequestError as exc:
+            if exc.status not in (403, 404, 405):
+                raise
+            logger.info("the map server does not take the clock's declaration: %s", exc)
+            self.declare_every_s = None
+            return
+        self.declared = now
 
     def _run(self) -> None:
         assert self._queue is not None

@@ -20,6 +20,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from mapserver.api import (
+    routes_clock,
     routes_docs,
     routes_maps,
     routes_ops,
@@ -39,6 +40,7 @@ from mapserver.api.routes_scans import INGEST
 from mapserver.api.scan_ingress import ScanIngress
 from mapserver.api.schemas import (
     CellsIn,
+    ClockIn,
     ErrorOut,
     PlanIn,
     ScanBatchIn,
@@ -103,7 +105,15 @@ def create_app(
     app.state.metrics.watch_reads(
         {"query": app.state.query_admission, "plan": app.state.plan_admission}
     )
-    routers = (routes_scans, routes_maps, routes_query, routes_plan, routes_units, routes_ops)
+    routers = (
+        routes_scans,
+        routes_maps,
+        routes_query,
+        routes_plan,
+        routes_units,
+        routes_clock,
+        routes_ops,
+    )
     for module in (*routers, routes_viewer, routes_docs):
         app.include_router(module.router)
     _complete_openapi(app)
@@ -132,7 +142,7 @@ BODY_RESPONSES = {
 
 
 def _complete_openapi(app: FastAPI) -> None:
-    """Publish the body models of the routes that read raw JSON (every POST route), the
+    """Publish the body models of the routes that read raw JSON (every POST and PUT), the
     edge's refusals on every operation (so the schema lists every status it can send) and
     the bearer scheme on the operations that need a token (``auth.openapi_security``)."""
     build = app.openapi
@@ -141,14 +151,15 @@ def _complete_openapi(app: FastAPI) -> None:
         if app.openapi_schema is None:
             schema = build()
             components = schema.setdefault("components", {}).setdefault("schemas", {})
-            for model in (ScanIn, ScanBatchIn, UnitsIn, CellsIn, SegmentsIn, PlanIn):
+            for model in (ScanIn, ScanBatchIn, UnitsIn, CellsIn, SegmentsIn, PlanIn, ClockIn):
                 model_schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
                 components.update(model_schema.pop("$defs", {}))
                 components[model.__name__] = model_schema
             components.setdefault("ErrorOut", ErrorOut.model_json_schema())
             for path in schema.get("paths", {}).values():
                 for method, operation in path.items():
-                    edge = {**EDGE_RESPONSES, **(BODY_RESPONSES if method == "post" else {})}
+                    body = method in ("post", "put")
+                    edge = {**EDGE_RESPONSES, **(BODY_RESPONSES if body else {})}
                     _add_errors(operation.setdefault("responses", {}), edge)
             openapi_security(schema)
             app.openapi_schema = schema

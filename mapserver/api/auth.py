@@ -16,7 +16,12 @@ from mapserver.service.settings import Role, Settings, TokenSettings
 
 WRITE = "write"
 READ = "read"
-ALLOWED = {WRITE: {Role.UNIT, Role.ADMIN}, READ: {Role.READER, Role.ADMIN}}
+DECLARE_CLOCK = "declare the clock"
+ALLOWED = {
+    WRITE: {Role.UNIT, Role.ADMIN},
+    READ: {Role.READER, Role.ADMIN},
+    DECLARE_CLOCK: {Role.ADMIN},
+}
 BEARER_SCHEME = "bearerAuth"
 """The OpenAPI security scheme's name (``openapi_security``)."""
 BEARER = HTTPBearer(
@@ -29,6 +34,7 @@ BEARER = HTTPBearer(
 WHO = {
     WRITE: "a `unit` token (posting only as the units it lists) or an `admin` token",
     READ: "a `reader` or an `admin` token",
+    DECLARE_CLOCK: "only an `admin` token",
 }
 
 

@@ -212,6 +212,36 @@ class Health(BaseModel):
     version: int
 
 
+class _StrictModel(BaseModel):
+    """Validated as sent: no extra fields, no coercion (a number is not a string)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class ClockIn(_StrictModel):
+    """``PUT /v1/clock``: a simulation declares its clock (docs/map-time.md)."""
+
+    now: float = Field(description="[s] the simulation's time now (its stamps' clock)")
+
+
+class DeclaredClock(BaseModel):
+    now: float = Field(description="[s] the declared clock, as last declared")
+    age_s: float = Field(description="[s] of wall time since it was declared")
+
+
+class ClockOut(BaseModel):
+    """What "now" is for the map's clock rule (docs/map-time.md)."""
+
+    reference: Literal["wall", "declared", "simulated"] = Field(
+        description="the clock stamps are judged against now"
+    )
+    now: float = Field(description="[s] that clock's reading now")
+    wall: float = Field(description="[s] the server's wall clock, epoch seconds")
+    map_stamp: float | None = Field(description="[s] the newest stamp the map accepted")
+    declared: DeclaredClock | None = Field(description="the declared simulation clock, if fresh")
+    max_lead_s: float = Field(description="[s] how far a stamp may lead `now`")
+
+
 class PlanIn(BaseModel):
     start: tuple[Finite, Finite] = Field(description="[x, y] [m]")
     goal: tuple[Finite, Finite] = Field(description="[x, y] [m]")
@@ -231,12 +261,6 @@ class PlanOut(BaseModel):
     expanded: int
     planning_ms: float
     map_version: int
-
-
-class _StrictModel(BaseModel):
-    """Validated as sent: no extra fields, no coercion (a number is not a string)."""
-
-    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class UnitPose(_StrictModel):

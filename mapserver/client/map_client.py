@@ -79,6 +79,7 @@ from pydantic import BaseModel, ValidationError
 from mapserver.api.schemas import (
     CellOut,
     CellsOut,
+    ClockOut,
     CostmapUpdates,
     MapMeta,
     PlanOut,
@@ -389,6 +390,19 @@ class MapClient:
     def units(self) -> list[UnitState]:
         """The latest published state of every unit, ordered by ``unit_id``."""
         return self._json("GET", "/v1/units", UnitsOut).units
+
+    # -- the map's clock (docs/map-time.md; project extension)
+
+    def clock(self) -> ClockOut:
+        """What a scan's stamp is judged against now (``GET /v1/clock``)."""
+        return self._json("GET", "/v1/clock", ClockOut)
+
+    def declare_clock(self, now: float) -> ClockOut:
+        """Declare the simulation's clock: it reads ``now`` [s] (``PUT /v1/clock``, as
+        ROS's ``/clock``); stamps are judged against it for ``clock.sim_ttl_s``."""
+        if isinstance(now, bool) or not isinstance(now, numbers.Real) or not math.isfinite(now):
+            raise ValueError(f"now must be a finite number of seconds, got {now!r}")
+        return self._json("PUT", "/v1/clock", ClockOut, _json_payload({"now": float(now)}))
 
     # -- operations (2.7)
 

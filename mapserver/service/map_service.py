@@ -5,8 +5,9 @@ State: the belief grid, the layered costmap and the journal, under one lock.
 Writes. Scans are validated field by field by the caller (``Scan.from_dict``) and
 submitted; one ingest thread takes them in arrival order, and everything that arrived
 meanwhile is one group (group commit): the state checks (``scan_gate``: a unit's stamps
-never go backwards, retries answered with their ack, the sensor on the map, the fleet
-clock's rule) and one journal transaction (durable before any reply). A second thread
+never go backwards, retries answered with their ack, the sensor on the map, no stamp
+ahead of the map's clock, ``map_clock``) and one journal transaction (durable before
+any reply). A second thread
 fuses the journaled groups in the same order and then answers their submissions, so the
 journal write of one group (an fsync, without the GIL) overlaps the fusion of the one
 before (numba, without the GIL), and an ack's map version always includes its scan. A
@@ -59,7 +60,7 @@ from mapserver.core.scan import Scan
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.costmap.lower_bound import static_lower_bound
-from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.map_clock import MapClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
@@ -129,8 +130,11 @@ class MapService:
         self.snapshot_failures = 0  # snapshot saves that failed (metrics)
         self.belief = settings.belief_grid(self.geometry)
         self.version = 0
-        self.clock = FleetClock(settings.clock.max_lead_s, settings.clock.window_scans)
+        self.clock = MapClock(
+            settings.clock.max_lead_s, settings.clock.sim_ttl_s, settings.clock.max_sim_rate
+        )
         self._restore()
+        self.clock.resume(self.belief.stamp)
         static = settings.static_map()
         layers = [StaticLayer(static)] if static is not None else []
         inflation = InflationLayer(settings.build_inflation(), self.geometry)
@@ -173,16 +177,20 @@ class MapService:
     # ---------------------------------------------------------------- lifecycle
     def _restore(self) -> None:
         """Newest usable snapshot + the journal after it. A damaged record (checksum,
-        body, or a scan ``Scan.from_dict`` refuses) and a scan that breaks the fleet
-        clock's rule (journaled before the rule) are quarantined and skipped. On an error
-        that stops start-up the journal and the lock are released."""
+        body, or a scan ``Scan.from_dict`` refuses) is quarantined and skipped. Every
+        intact record is fused (the clock rule judged it when it arrived) but one whose
+        stamp is ahead of the wall clock even now (journaled before the rule), which is
+        quarantined and its unit's stamp bound reset. On an error that stops start-up
+        the journal and the lock are released."""
         try:
             after = self._load_newest_snapshot()
             max_beams = self.settings.limits.max_beams
-            for record in read_records(self.journal, self.clock, after, max_beams=max_beams):
+            not_after = time.time() + self.settings.clock.max_lead_s
+            records = read_records(self.journal, after, max_beams=max_beams, not_after=not_after)
+            for record in records:
                 if record.scan is None:
                     self._quarantine(record.seq, record.unit_id, record.problem)
-                    if record.clock_lead:  # the real unit may post at its own time again
+                    if record.ahead:  # the real unit may post at its own time again
                         self.journal.reset_unit_stamp(record.unit_id)
                     continue
                 self.belief.fuse(record.scan)

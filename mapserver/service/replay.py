@@ -2,12 +2,14 @@
 its scans in journal order (optionally only those with stamp <= ``until``).
 
 Read-only: a damaged record (its checksum fails, its body does not parse, or
-``Scan.from_dict`` refuses it) and a scan that breaks the fleet clock's rule (with its
-default settings, ``fleet_clock``) are skipped and reported, as the server would
-quarantine them, but the journal is not changed."""
+``Scan.from_dict`` refuses it) is skipped and reported, as the server would quarantine
+it, but the journal is not changed. Every intact record is replayed, as the server
+does (the clock rule judged scans when they arrived, docs/map-time.md), but one whose
+stamp is ahead of the wall clock even now, which the server quarantines too."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +20,7 @@ from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
-from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.map_clock import DEFAULT_MAX_LEAD_S
 from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
 from mapserver.store.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
 from mapserver.store.journal_reading import ReadRecord, read_records
@@ -97,6 +99,7 @@ def journal_records(journal_file: Path, until: float | None = None) -> Iterator[
     ReplayError when the journal itself cannot be read."""
     try:
         with open_journal_for_replay(journal_file) as journal:
-            yield from read_records(journal, FleetClock(), until=until)
+            not_after = time.time() + DEFAULT_MAX_LEAD_S  # as the server's start-up does
+            yield from read_records(journal, until=until, not_after=not_after)
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None

@@ -1,7 +1,7 @@
 """Which submitted scans the map takes: the state checks of ingest, a group at a time.
 
 A scan is taken when its unit's stamps do not go backwards, its sensor is on the map and
-its stamp keeps the fleet clock's rule (``fleet_clock``). The same unit, stamp and scan
+its stamp is not ahead of the map's clock (``map_clock``). The same unit, stamp and scan
 again (a retry) is answered with that scan's acknowledgement and not taken twice; another
 scan at a stamp the unit already used is refused (409). Checks run on a group's own copy
 of the state (``GroupCheck``): a refused submission changes nothing, and the group's
@@ -17,7 +17,7 @@ from typing import Any
 from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
-from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.map_clock import MapClock
 
 
 class IngestError(FleetmapError, Exception):
@@ -53,10 +53,10 @@ FindScan = Callable[[str, float], "tuple[int, Mapping[str, Any]] | None"]
 
 
 class ScanGate:
-    """The state the checks read: each unit's latest scan and the fleet clock.
+    """The state the checks read: each unit's latest scan and the map's clock.
 
-    geometry: the map (a sensor must be on it). clock: the fleet clock, already fed
-    with the journal's scans. unit_stamps: each unit's largest journaled stamp [s].
+    geometry: the map (a sensor must be on it). clock: the map's clock, resumed at the
+    restored map's stamp. unit_stamps: each unit's largest journaled stamp [s].
     find_scan: ``(unit_id, stamp) -> (seq, scan object) | None`` from the journal, to
     answer a retry of a scan this process has not seen (after a restart).
     max_beams: the scan validator's bound, for scans read back from the journal.
@@ -65,7 +65,7 @@ class ScanGate:
     def __init__(
         self,
         geometry: GridGeometry,
-        clock: FleetClock,
+        clock: MapClock,
         unit_stamps: Mapping[str, float],
         find_scan: FindScan,
         max_beams: int,
@@ -111,7 +111,7 @@ class GroupCheck:
             if outcome is None:  # a new scan
                 outcome = UnitLatest(scan.stamp, scan.digest(), slot=len(self.new))
                 self.new.append(scan)
-                clock.observe(scan.unit_id, scan.stamp)
+                clock.observe(scan.stamp)
             self._latest[scan.unit_id] = outcome
             entries.append(outcome)
         return entries
@@ -124,7 +124,7 @@ class GroupCheck:
         self._gate._latest = self._latest
 
     def abandon(self) -> None:
-        """Nothing of the group was journaled: the clock forgets what it heard."""
+        """Nothing of the group was journaled: the clock forgets what it observed."""
         self._gate.clock.restore(self._clock_before)
 
     @staticmethod
@@ -162,7 +162,7 @@ class GroupCheck:
             )
         lead = self._gate.clock.check(scan.stamp)
         if lead is not None:
-            return IngestError(422, f"{where}stamp: {scan.stamp} {lead.describe()}")
+            return IngestError(422, f"{where}stamp: {lead.describe()}")
         return None
 
     def _repeat_of(self, scan: Scan, last: UnitLatest) -> UnitLatest | None:

@@ -28,6 +28,7 @@ server is open, and an open server may only bind a loopback address (127.0.0.0/8
 from __future__ import annotations
 
 import ipaddress
+import logging
 import math
 import os
 from collections.abc import Iterator, Mapping
@@ -60,7 +61,11 @@ from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import DEFAULT_MAX_BEAMS
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
-from mapserver.service.fleet_clock import DEFAULT_MAX_LEAD_S, DEFAULT_WINDOW_SCANS
+from mapserver.service.map_clock import (
+    DEFAULT_MAX_LEAD_S,
+    DEFAULT_MAX_SIM_RATE,
+    DEFAULT_SIM_TTL_S,
+)
 from mapserver.service.validation import (
     Section,
     domain_section,
@@ -75,6 +80,7 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8700
 DEFAULT_DATA_DIR = Path("fleetmap-data")
 MIB = 1024 * 1024
+logger = logging.getLogger(__name__)
 
 # The YAML config file's contents while ``Settings.from_yaml`` builds an instance.
 _CONFIG_FILE_DATA: ContextVar[Mapping[str, Any]] = ContextVar(
@@ -214,15 +220,36 @@ class LimitsSettings(Section):
 
 
 class ClockSettings(Section):
-    """The fleet's clock (``mapserver.service.fleet_clock``): no single unit decides the map's time.
+    """The map's clock (``mapserver.service.map_clock``, docs/map-time.md): a stamp ahead
+    of "now" is refused, "now" being a reference no group of units controls.
 
-    max_lead_s: [s] how far a scan's stamp may lead the server's wall clock and the
-        median of the fleet's latest stamps; a scan leading further is refused (422).
-    window_scans: units heard from among this many latest scans make up the fleet.
+    max_lead_s: [s] how far a scan's stamp may lead the reference (the server's wall
+        clock; a declared simulation clock; the map's simulated time); a scan leading
+        further is refused (422).
+    sim_ttl_s: [s] of wall time a declared simulation clock (``PUT /v1/clock``) binds
+        after it was declared, and a simulated map's time holds epoch stamps off after
+        it last advanced.
+    max_sim_rate: how many times faster than real time a simulation with no declared
+        clock may run while all its units are silent (the map's simulated time may have
+        run on this much since it last advanced).
     """
 
     max_lead_s: float = Field(default=DEFAULT_MAX_LEAD_S, gt=0, allow_inf_nan=False)
-    window_scans: int = Field(default=DEFAULT_WINDOW_SCANS, gt=0)
+    sim_ttl_s: float = Field(default=DEFAULT_SIM_TTL_S, gt=0, le=86400, allow_inf_nan=False)
+    max_sim_rate: float = Field(default=DEFAULT_MAX_SIM_RATE, gt=0, le=1e6, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _removed_keys(cls, data: Any) -> Any:
+        """``window_scans`` (the fleet median's window, removed with that rule) is
+        accepted and ignored with a warning, so an old config file still loads."""
+        if isinstance(data, Mapping) and "window_scans" in data:
+            logger.warning(
+                "clock.window_scans is ignored: the map's time no longer depends on the "
+                "fleet's median (docs/map-time.md); remove it from the settings"
+            )
+            data = {k: v for k, v in data.items() if k != "window_scans"}
+        return data
 
 
 class ReadSettings(Section):

@@ -460,15 +460,6 @@ class Journal:
             return None
         return record.seq, record.scan
 
-    def recent_units(self, up_to_seq: int, count: int) -> list[tuple[str, float]]:
-        """``(unit_id, stamp [s])`` of the last ``count`` scans with seq <= ``up_to_seq``,
-        oldest first (what the fleet clock had heard at that point)."""
-        rows = self._read(
-            "SELECT unit_id, stamp FROM scans WHERE seq <= ? ORDER BY seq DESC LIMIT ?",
-            (int(up_to_seq), int(count)),
-        )
-        return [(str(unit), float(stamp)) for unit, stamp in reversed(rows)]
-
     # ---------------------------------------------------------------- quarantine
     def quarantine(self, seq: int, reason: str) -> bool:
         """Move scan ``seq`` (its original bytes) to the ``quarantine`` table with

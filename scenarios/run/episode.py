@@ -56,6 +56,7 @@ from scenarios.spec.scenario import Scenario
 from scenarios.spec.tasks import Task
 
 POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim steps on
+CLOCK_EVERY_S = 1.0  # [s] of sim time between declarations of its clock (docs/map-time.md)
 RESERVE_MARGIN_M = 1.0
 """[m] how much earlier than its braking distance a unit asks for its next lanes."""
 
@@ -167,7 +168,8 @@ class Episode:
         # Scans go out on a worker thread while the sim casts the next tick's rays;
         # every map read waits for them first (``synced``), so runs stay deterministic.
         self.poster = FleetMemberFilter(
-            ScanPoster(self.client, in_flight=POSTS_IN_FLIGHT), unit_positions
+            ScanPoster(self.client, in_flight=POSTS_IN_FLIGHT, declare_every_s=CLOCK_EVERY_S),
+            unit_positions,
         )
         self.sim = FleetSim(world, units, seed=setup.seed, poster=self.poster)
         self.graph = graph = setup.build_lane_graph(segment_m=opts.segment_m)

@@ -50,9 +50,9 @@ def test_a_unit_far_ahead_is_refused_and_changes_no_cell(data_dir, lead):
         reply = client.post("/v1/scans", json=scan_body(stamp=10.0 + lead, unit="u4", y=4.0))
         assert reply.status_code == 422
         detail = reply.json()["detail"]
-        assert detail.startswith(f"stamp: {10.0 + lead}") and "clock.max_lead_s = 5 s" in detail
-        reference = "wall clock" if lead > 1e9 else "fleet's clock (median of its units) (10 s)"
-        assert reference in detail
+        assert detail.startswith(f"stamp: {10.0 + lead!r} is ") and "max_lead_s = 5 s" in detail
+        reference = "the server's clock" if lead > 1e9 else "simulated time (1"
+        assert reference in detail and "this unit's clock runs" in detail
         assert wall_cells(client) == before
         assert client.get("/v1/map/meta").json() == meta
         ok = client.post("/v1/scans", json=scan_body(stamp=11.0, unit="u4", y=4.0))
@@ -62,15 +62,29 @@ def test_a_unit_far_ahead_is_refused_and_changes_no_cell(data_dir, lead):
         assert [c[0] for c in wall_cells(client)] == ["occupied"] * len(WALL_POINTS)
 
 
-def test_a_unit_cannot_walk_the_clock_forward_in_small_steps(data_dir):
+def test_a_declared_clock_stops_a_unit_walking_the_time_forward(data_dir):
     with app_on(data_dir) as client:
         fleet_scans(client, seconds=2.0)
+        assert client.put("/v1/clock", json={"now": 2.0}).json()["reference"] == "declared"
         statuses = [
             client.post("/v1/scans", json=scan_body(stamp=2.0 + 4.0 * k, unit="u9")).status_code
             for k in range(1, 5)
         ]
         assert statuses == [200, 422, 422, 422]  # 6 s leads 2 s by 4; 10 s would lead by 8
         assert client.get("/v1/map/meta").json()["stamp"] == 6.0
+
+
+def test_without_a_declared_clock_a_walk_is_bounded_by_the_lead_per_step(data_dir):
+    """The residue of docs/map-time.md: with no clock declared, a unit may lead the map's
+    simulated time by max_lead_s (plus max_sim_rate x the wall time since it advanced,
+    nearly 0 here) with each scan, and no further."""
+    with app_on(data_dir, clock={"max_sim_rate": 1e-6}) as client:
+        fleet_scans(client, seconds=2.0)
+        posted = {
+            stamp: client.post("/v1/scans", json=scan_body(stamp=stamp, unit="u9")).status_code
+            for stamp in (6.9, 11.8, 17.0, 16.7)
+        }
+        assert posted == {6.9: 200, 11.8: 200, 17.0: 422, 16.7: 200}
 
 
 def test_a_retry_returns_the_original_ack_and_journals_nothing(data_dir):
@@ -170,7 +184,7 @@ def test_an_old_journal_with_a_stamp_far_ahead_replays_without_it(data_dir):
         assert wall_cells(client) == before
         assert client.get("/v1/map/meta").json()["stamp"] == 10.0
         assert [row[0] for row in service.journal.quarantined_rows()] == [bad_seq]
-        assert "leads the server's wall clock" in service.journal.quarantined_rows()[0][3]
+        assert "ahead of the server's clock at start-up" in service.journal.quarantined_rows()[0][3]
         assert "fleetmap_journal_quarantined 1.0" in client.get("/metrics").text
         ok = client.post("/v1/scans", json=scan_body(stamp=10.5, unit="u7"))
         assert ok.status_code == 200  # the real u7 is not locked out

@@ -102,8 +102,10 @@ def test_every_operation_but_the_open_ones_needs_a_bearer_token(client, schema):
 
 def test_each_secured_operations_description_names_the_roles_the_server_admits(client, schema):
     secured = [(m, p, op) for m, p, op in operations(schema) if op.get("security")]
-    assert len(secured) == 12
+    assert len(secured) == 14
     for method, path, op in secured:
+        if "only an `admin` token" in op["description"]:
+            continue  # declaring the clock: below
         reader = client.request(
             method, path, json={}, headers={**JSON, "Authorization": "Bearer reader-t"}
         )
@@ -114,6 +116,13 @@ def test_each_secured_operations_description_names_the_roles_the_server_admits(c
             assert reader.status_code not in (401, 403), (method, path, reader.text)
     writes = {(m, p) for m, p, op in secured if "a `unit` token" in op["description"]}
     assert writes == {("post", "/v1/scans"), ("post", "/v1/scans/batch"), ("post", "/v1/units")}
+    admin = {(m, p) for m, p, op in secured if "only an `admin` token" in op["description"]}
+    assert admin == {("put", "/v1/clock")}
+    for token in ("reader-t", "unit-t"):
+        reply = client.put(
+            "/v1/clock", json={"now": 1.0}, headers={**JSON, "Authorization": f"Bearer {token}"}
+        )
+        assert reply.status_code == 403 and "may not declare the clock" in reply.json()["detail"]
 
 
 def reply_is(reply, status: int) -> bool:

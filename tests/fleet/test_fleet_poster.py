@@ -1,5 +1,6 @@
 """Posting scans through MapClient: batches in order, acks back, errors surfaced."""
 
+import json
 import threading
 
 import httpx
@@ -87,3 +88,46 @@ def test_a_failed_request_stops_the_pipeline_and_is_raised():
 def test_settings_errors_name_the_field_and_value(field, value):
     with pytest.raises(ValueError, match=f"{field} must be an integer >= ., got {value}"):
         ScanPoster(client(FakeServer()), **{field: value})
+
+
+class ClockServer(FakeServer):
+    """A FakeServer that also takes ``PUT /v1/clock`` (or answers it ``clock_status``)."""
+
+    def __init__(self, clock_status: int = 200) -> None:
+        super().__init__()
+        self.clock_status = clock_status
+        self.requests: list[tuple[str, float]] = []  # ("clock", now) or ("scans", stamp)
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        if request.url.path != "/v1/clock":
+            reply = super().__call__(request)
+            self.requests.append(("scans", self.batches[-1][0][1]))
+            return reply
+        now = json.loads(request.content)["now"]
+        if self.clock_status != 200:
+            return httpx.Response(self.clock_status, json={"detail": "Not Found"})
+        self.requests.append(("clock", now))
+        body = {"reference": "declared", "now": now, "wall": 1.7e9, "map_stamp": None,
+                "declared": {"now": now, "age_s": 0.0}, "max_lead_s": 5.0}  # fmt: skip
+        return httpx.Response(200, json=body)
+
+
+def test_the_poster_declares_the_clock_before_the_scans_every_declare_every_s():
+    server = ClockServer()
+    with ScanPoster(client(server), in_flight=2, declare_every_s=1.0) as poster:
+        for k in range(1, 26):
+            poster.post(scans(1, k * 0.1))
+        poster.flush()
+    clocks = [r for r in server.requests if r[0] == "clock"]
+    assert [now for _, now in clocks] == pytest.approx([0.1, 1.1, 2.1])
+    first_scan = server.requests.index(("scans", pytest.approx(0.1)))
+    assert server.requests.index(("clock", pytest.approx(0.1))) < first_scan
+
+
+@pytest.mark.parametrize("status", [403, 404, 405])
+def test_a_server_that_does_not_take_the_clock_still_gets_the_scans(status):
+    server = ClockServer(clock_status=status)
+    poster = ScanPoster(client(server), declare_every_s=1.0)
+    for k in range(1, 4):
+        assert len(poster.post(scans(1, float(k)))) == 1
+    assert poster.declare_every_s is None and len(server.batches) == 3

@@ -1,11 +1,13 @@
 """The ingest checks on their own: all or none per submission, retries, and a group that
 is abandoned (its journal write failed) or committed."""
 
+import math
+
 from server_helpers import scan_body
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
-from mapserver.service.fleet_clock import FleetClock
+from mapserver.service.map_clock import MapClock
 from mapserver.service.scan_gate import Ack, IngestError, ScanGate
 
 
@@ -14,7 +16,7 @@ def scan(stamp, unit="u1", **fields):
 
 
 def gate(unit_stamps=None, find_scan=lambda unit, stamp: None):
-    clock = FleetClock(5.0, 1000, wall_clock=lambda: 1e9)
+    clock = MapClock(5.0, wall_clock=lambda: 1e9)
     return ScanGate(GridGeometry(200, 100, 0.1), clock, unit_stamps or {}, find_scan, 16384)
 
 
@@ -25,7 +27,7 @@ def test_a_refused_submission_changes_nothing_of_the_group():
     refused = check.admit([scan(2.0, "u2"), scan(0.5)])  # u1 goes backwards: all refused
     assert isinstance(refused, IngestError) and refused.status == 409
     assert refused.detail.startswith("scans[1].stamp: unit 'u1' already sent stamp 1.0")
-    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.fleet_median() == 1.0
+    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.map_stamp == 1.0
     check.commit([Ack(7, 7)])
     assert check.answers(first, [Ack(7, 7)]) == [Ack(7, 7)]
 
@@ -35,7 +37,7 @@ def test_an_abandoned_group_leaves_the_gate_as_it_was():
     check = g.open_group()
     check.admit([scan(1.0), scan(1.0, "u2")])
     check.abandon()  # the journal write failed
-    assert g.clock.fleet_median() is None
+    assert g.clock.map_stamp == -math.inf
     again = g.open_group()
     assert isinstance(again.admit([scan(1.0)]), list)  # not a retry of an unjournaled scan
     assert len(again.new) == 1
@@ -59,5 +61,5 @@ def test_a_refused_single_scan_changes_nothing():
     check.admit([scan(1.0)])
     refused = check.admit([scan(1e12, "u9")])  # leads the wall clock (1e9 s here)
     assert isinstance(refused, IngestError) and refused.status == 422
-    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.fleet_median() == 1.0
+    assert [s.unit_id for s in check.new] == ["u1"] and g.clock.map_stamp == 1.0
     assert isinstance(check.admit([scan(2.0, "u9")]), list)  # u9 has no stamp recorded

@@ -1,0 +1,65 @@
+"""``GET /v1/clock`` and ``PUT /v1/clock``: what "now" is for the map's clock rule, and a
+simulation declaring its clock, as ROS's ``/clock`` (docs/map-time.md; an addition to
+docs/http-api.md)."""
+
+from __future__ import annotations
+
+import math
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
+
+from mapserver.api.auth import DECLARE_CLOCK, READ, require
+from mapserver.api.body import body_schema, read_json
+from mapserver.api.schemas import ClockIn, ClockOut, DeclaredClock, ErrorOut
+from mapserver.service.map_clock import ClockDeclarationError, MapClock
+
+router = APIRouter(tags=["clock"])
+
+
+def clock_out(clock: MapClock) -> ClockOut:
+    """The clock's state as ``GET /v1/clock`` answers it."""
+    reference = clock.reference()
+    declared = clock.declared()
+    return ClockOut(
+        reference=reference.kind,
+        now=reference.value,
+        wall=clock.wall_clock(),
+        map_stamp=clock.map_stamp if math.isfinite(clock.map_stamp) else None,
+        declared=None if declared is None else DeclaredClock(now=declared[0], age_s=declared[1]),
+        max_lead_s=clock.max_lead_s,
+    )
+
+
+@router.get(
+    "/v1/clock",
+    response_model=ClockOut,
+    responses={status: {"model": ErrorOut} for status in (401, 403)},
+    dependencies=[Depends(require(READ))],
+    summary="What a scan's stamp is judged against now",
+)
+def get_clock(request: Request) -> ClockOut:
+    return clock_out(request.app.state.service.clock)
+
+
+@router.put(
+    "/v1/clock",
+    response_model=ClockOut,
+    responses={status: {"model": ErrorOut} for status in (400, 401, 403, 413, 422)},
+    openapi_extra=body_schema(ClockIn),
+    dependencies=[Depends(require(DECLARE_CLOCK))],
+    summary="Declare a simulation's clock (as ROS's /clock); it binds for clock.sim_ttl_s",
+)
+async def put_clock(request: Request) -> ClockOut:
+    body = await read_json(request)
+    try:
+        declared = ClockIn.model_validate(body)
+    except ValidationError as exc:
+        raise RequestValidationError(exc.errors(include_url=False)) from None
+    clock: MapClock = request.app.state.service.clock
+    try:
+        clock.declare(declared.now)
+    except ClockDeclarationError as exc:
+        raise HTTPException(422, str(exc)) from None
+    return clock_out(clock)
