@@ -93,7 +93,8 @@ def test_a_failing_journal_write_fails_its_submission_alone(service, rate_limite
     assert outcome(service.submit([scan("u3", 7.0, row=1)])) == 503
     assert outcome(service.submit([scan("u2", 4.0)])) == [7]
     lines = [r.getMessage() for r in rate_limited_log.records if "journal write" in r.msg]
-    assert lines == ["journal write failed for unit 'u3' (1 scans): OperationalError: disk I/O error"]
+    reason = "OperationalError: disk I/O error"
+    assert lines == [f"journal write failed for unit 'u3' (1 scans): {reason}"]
 
 
 def test_a_scan_that_cannot_be_fused_is_quarantined_and_fails_alone(service, tmp_path):
