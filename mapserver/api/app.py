@@ -32,7 +32,6 @@ from mapserver.api import (
 )
 from mapserver.api.admission import Admission
 from mapserver.api.auth import openapi_security
-from mapserver.api.body import quote
 from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
 from mapserver.api.metrics import ServerMetrics, method_label
 from mapserver.api.planning import CostmapPlanner, GridPlanning
@@ -50,6 +49,7 @@ from mapserver.api.schemas import (
 )
 from mapserver.api.unit_board import UnitBoard
 from mapserver.core.geometry import GridGeometry
+from mapserver.core.text import quote
 from mapserver.service.map_service import MapService
 from mapserver.service.settings import Settings
 from planner.grid_search import GridPlanner

@@ -12,6 +12,7 @@ from typing import Any
 from fastapi import HTTPException, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from mapserver.core.text import quote
 from mapserver.service.settings import Role, Settings, TokenSettings
 
 WRITE = "write"
@@ -105,7 +106,7 @@ def require_unit(request: Request, unit_id: str, field: str) -> None:
         return
     raise HTTPException(
         403,
-        f"{field}: token {token.name!r} may not post as unit {unit_id!r} "
+        f"{field}: token {token.name!r} may not post as unit {quote(unit_id)} "
         f"(it may post as {', '.join(token.units or ())})",
     )
 

@@ -1,10 +1,17 @@
 """Reading JSON request bodies (400 when not JSON; the size and time bounds are
 ``guards.BodyMiddleware``'s).
 
-Bodies are strict JSON, plus ``Infinity``/``-Infinity``/``NaN`` (which the contract
-allows in ``ranges``). Refused with 400 naming the problem: nesting deeper than
-``MAX_DEPTH`` (the API's deepest body, a unit's path, nests 4 levels; a 1,000-deep one
-would only exhaust the validators' recursion) and integers beyond the float range (no
+Bodies are strict JSON in UTF-8, plus ``Infinity``/``-Infinity``/``NaN`` (which the
+contract allows in ``ranges``). Two readers: orjson, and Python's ``json`` for what orjson
+refuses (those numbers, and a ``\\uD800`` escape that leaves a lone surrogate in a string).
+Both read a body the same way: the fallback takes the bytes as strict UTF-8, as orjson
+does (no byte order mark, no UTF-16, no surrogates encoded as bytes: 400), and a string
+holding a lone surrogate from an escape is left for the field's rule to refuse by name
+(``mapserver.core.text``: 422, the value quoted).
+
+Refused with 400 naming the problem: nesting deeper than ``MAX_DEPTH`` (the API's
+deepest body, a unit's path, nests 4 levels; a 1,000-deep one would only exhaust the
+validators' recursion) and integers beyond the float range (no
 field of the API holds one; as a float such a number would be infinite). An integer
 wider than 64 bits but within the float range is read as the nearest float (orjson's
 reading; every number the API takes is a float).
@@ -13,7 +20,6 @@ reading; every number the API takes is a float).
 from __future__ import annotations
 
 import json
-import reprlib
 import sys
 from typing import Any
 
@@ -24,8 +30,6 @@ from numba import njit
 
 MAX_DEPTH = 32  # levels of arrays and objects
 FLOAT_MAX = sys.float_info.max
-QUOTE = reprlib.Repr()  # keyword arguments need Python 3.12
-QUOTE.maxlevel, QUOTE.maxstring, QUOTE.maxother, QUOTE.maxlist, QUOTE.maxdict = 3, 60, 60, 4, 4
 
 
 async def read_json(request: Request) -> Any:
@@ -42,7 +46,7 @@ def parse_json(raw: bytes) -> Any:
         if "depth limit" in str(exc):
             raise too_deep from None
         try:
-            value = json.loads(raw, parse_int=_float_range_int)  # also Infinity and NaN
+            value = read_fallback(raw)
         except RecursionError:
             raise too_deep from None
         except (ValueError, UnicodeDecodeError) as exc:
@@ -53,10 +57,11 @@ def parse_json(raw: bytes) -> Any:
     return value
 
 
-def quote(value: Any) -> str:
-    """A short repr of a request value for an error message, bounded however the value
-    nests or however long it is."""
-    return QUOTE.repr(value)
+def read_fallback(raw: bytes) -> Any:
+    """``raw`` read by Python's ``json`` as orjson reads it (strict UTF-8, integers beyond
+    64 bits as floats), plus ``Infinity``/``NaN`` and lone surrogates from ``\\u``
+    escapes; ValueError (a UnicodeDecodeError or JSONDecodeError) when it is not JSON."""
+    return json.loads(raw.decode("utf-8"), parse_int=_float_range_int)
 
 
 def _nesting(raw: bytes) -> int:

@@ -8,11 +8,12 @@ from typing import Any
 from fastapi import APIRouter, Depends, HTTPException, Request
 
 from mapserver.api.auth import WRITE, require, require_unit
-from mapserver.api.body import body_schema, parse_json, quote
+from mapserver.api.body import body_schema, parse_json
 from mapserver.api.guards import media_type
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.core.scan import Scan, ScanError
 from mapserver.core.scan_binary import CONTENT_TYPE, ScanEncodingError, decode_scans
+from mapserver.core.text import quote
 from mapserver.service.map_service import MapService
 from mapserver.service.scan_gate import IngestError
 

@@ -3,6 +3,9 @@
 Scan bodies are documented with ``ScanIn`` but validated by ``Scan.from_dict``, the one
 validator of scans, so errors read the same from every source.
 
+Strings a route stores or echoes (``unit_id``, a unit state's ``reason``) follow the one
+rule of ``mapserver.core.text`` (``UnitId``, ``Reason``), as ``Scan.from_dict`` does.
+
 Numbers in request bodies are strict: an integer is a number, ``true`` is not (pydantic
 would otherwise read it as 1.0); booleans are only ``true``/``false``.
 
@@ -18,11 +21,20 @@ from collections.abc import Iterable
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.patch import Patch
+from mapserver.core.text import MAX_ID_CHARS, text_problem
 
 Number = Annotated[float, Field(strict=True)]  # int or float; not a bool, not a string
 Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
@@ -30,8 +42,36 @@ Flag = Annotated[bool, Field(strict=True)]  # true or false; not 1, not "yes"
 MAX_QUERY_ITEMS = 100_000
 MAX_UNITS_PER_POST = 1024
 MAX_PATH_POINTS = 10_000
-MAX_UNIT_ID_CHARS = 64
+MAX_UNIT_ID_CHARS = MAX_ID_CHARS
 MAX_REASON_CHARS = 200
+
+
+def _clean_text(max_chars: int) -> BeforeValidator:
+    """A validator holding a string field to ``mapserver.core.text``'s rule (at most
+    ``max_chars`` printable characters), run before pydantic's own so that a lone
+    surrogate or a megabyte is refused with that rule's reason; a value that is not a
+    string is left to the field's type (``Input should be a valid string``)."""
+
+    def check(value: Any) -> Any:
+        problem = text_problem(value, max_chars) if isinstance(value, str) else None
+        if problem is not None:
+            raise PydanticCustomError("clean_text", "{problem}", {"problem": problem})
+        return value
+
+    return BeforeValidator(check)
+
+
+UnitId = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=MAX_UNIT_ID_CHARS,
+        description=f"1 to {MAX_UNIT_ID_CHARS} printable characters (docs/http-api.md)",
+    ),
+    _clean_text(MAX_UNIT_ID_CHARS),
+]
+"""A unit's id: the one rule of ``mapserver.core.text``, as ``Scan.from_dict`` applies it."""
+Reason = Annotated[str, Field(max_length=MAX_REASON_CHARS), _clean_text(MAX_REASON_CHARS)]
 
 
 class PoseIn(BaseModel):
@@ -48,7 +88,7 @@ class PoseStdIn(BaseModel):
 class ScanIn(BaseModel):
     """One planar LiDAR scan (docs/http-api.md 2.1); ranges follow REP 117."""
 
-    unit_id: str = Field(min_length=1)
+    unit_id: UnitId
     stamp: Number = Field(description="[s] time used for freshness and decay")
     frame: Literal["map"] = "map"
     pose: PoseIn
@@ -247,7 +287,7 @@ class PlanIn(BaseModel):
     goal: tuple[Finite, Finite] = Field(description="[x, y] [m]")
     algorithm: Literal["astar", "dijkstra"] = "astar"
     allow_unknown: Flag = True
-    unit_id: str | None = Field(None, description="who asks (for logs)")
+    unit_id: UnitId | None = Field(None, description="who asks (for logs)")
 
 
 class PlanOut(BaseModel):
@@ -288,7 +328,7 @@ class UnitState(_StrictModel):
     is true exactly when ``activity`` is ``"frozen"``.
     """
 
-    unit_id: str = Field(min_length=1, max_length=MAX_UNIT_ID_CHARS)
+    unit_id: UnitId
     stamp: Finite = Field(description="[s] time of this state, as scan stamps")
     pose: UnitPose
     path: list[Point] = Field(
@@ -297,9 +337,7 @@ class UnitState(_StrictModel):
         description="the unit's planned path [[x, y], ...] [m], empty when it has none",
     )
     frozen: bool = Field(False, description="no admissible path or lane: the unit waits")
-    reason: str | None = Field(
-        None, max_length=MAX_REASON_CHARS, description="why the unit is frozen or waits"
-    )
+    reason: Reason | None = Field(None, description="why the unit is frozen or waits")
     activity: Activity | None = Field(
         None,
         description="what the unit is doing: moving, waiting (for traffic), frozen, "

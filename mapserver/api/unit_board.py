@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from mapserver.api.schemas import UnitState
 from mapserver.core.errors import FleetmapError
+from mapserver.core.text import quote
 
 MAX_TRACKED_UNITS = 4096  # distinct unit ids held at most
 
@@ -61,14 +62,14 @@ class UnitBoard:
                 raise UnitBoardError(
                     422,
                     f"units[{i}].unit_id: each unit at most once per post "
-                    f"(also units[{first[state.unit_id]}]), got {state.unit_id!r}",
+                    f"(also units[{first[state.unit_id]}]), got {quote(state.unit_id)}",
                 )
             first[state.unit_id] = i
             held = self._states.get(state.unit_id)
             if held is not None and state.stamp < held.stamp:
                 raise UnitBoardError(
                     409,
-                    f"units[{i}].stamp: unit {state.unit_id!r} already published stamp "
+                    f"units[{i}].stamp: unit {quote(state.unit_id)} already published stamp "
                     f"{held.stamp}, stamps must not go backwards, got {state.stamp}",
                 )
         new = [unit_id for unit_id in first if unit_id not in self._states]
@@ -77,5 +78,5 @@ class UnitBoard:
             raise UnitBoardError(
                 409,
                 f"units[{i}].unit_id: the server tracks at most {self.capacity} units, "
-                f"got a new unit {states[i].unit_id!r} beyond that",
+                f"got a new unit {quote(states[i].unit_id)} beyond that",
             )

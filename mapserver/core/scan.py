@@ -10,7 +10,9 @@ Range semantics follow ROS REP 117:
   and dropped: they change nothing.
 
 ``Scan.from_dict`` is the one validator for scans from any source (a JSONL file, an HTTP
-body); every error names the field and the offending value.
+body, binary or JSON, a journal replayed); every error names the field and the offending
+value, quoted bounded. ``unit_id`` follows the rule of identifiers (``mapserver.core.text``:
+1 to 64 printable characters).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from mapserver.core.errors import FleetmapError
+from mapserver.core.text import MAX_ID_CHARS, quote, text_problem
 
 MAP_FRAME = "map"
 DEFAULT_MAX_BEAMS = 16384
@@ -56,12 +59,7 @@ class ScanError(FleetmapError, ValueError):
         self.field = field
         self.value = value
         self.reason = reason
-        super().__init__(f"{field}: {reason}, got {_short_repr(value)}")
-
-
-def _short_repr(value: Any, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+        super().__init__(f"{field}: {reason}, got {quote(value)}")
 
 
 @dataclass(frozen=True)
@@ -151,8 +149,9 @@ class Scan:
         if not isinstance(data, Mapping):
             raise ScanError("scan", data, "must be a JSON object")
         unit_id = data.get("unit_id")
-        if not isinstance(unit_id, str) or not unit_id.strip():
-            raise ScanError("unit_id", unit_id, "must be a non-empty string")
+        problem = text_problem(unit_id, MAX_ID_CHARS)
+        if problem is not None:
+            raise ScanError("unit_id", unit_id, problem)
         frame = data.get("frame", MAP_FRAME)
         if frame != MAP_FRAME:
             raise ScanError("frame", frame, f"must be {MAP_FRAME!r}, the only frame")

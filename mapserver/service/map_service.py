@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.core.belief import BeliefGrid, CellBox
+from mapserver.core.belief import BeliefGrid, CellBox, FusionResult
 from mapserver.core.errors import FleetmapError
 from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.patch import Patch
@@ -57,6 +57,7 @@ from mapserver.core.queries import (
     sample_cells,
 )
 from mapserver.core.scan import Scan
+from mapserver.core.text import clip, quote
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.costmap.lower_bound import static_lower_bound
@@ -103,6 +104,13 @@ class _Journaled:
     accepted: list[tuple[_Submission, list[UnitLatest]]]
     new: list[Scan]
     acks: list[Ack]
+
+
+def _units(scans: list[Scan]) -> str:
+    """The unit of ``scans`` (of a batch, its distinct units), quoted bounded for a log
+    line or a message."""
+    units = sorted({scan.unit_id for scan in scans})
+    return quote(units[0] if len(units) == 1 else units)
 
 
 def _fail(submissions: list[_Submission], exc: Exception) -> None:
@@ -193,7 +201,12 @@ class MapService:
                     if record.ahead:  # the real unit may post at its own time again
                         self.journal.reset_unit_stamp(record.unit_id)
                     continue
-                self.belief.fuse(record.scan)
+                try:
+                    self.belief.fuse(record.scan)
+                except Exception as exc:  # changes nothing (see ``_fuse_apart``)
+                    reason = clip(f"fusion failed: {type(exc).__name__}: {exc}")
+                    self._quarantine(record.seq, record.unit_id, reason)
+                    continue
                 self.version = record.seq
         except BaseException:
             self.journal.close()
@@ -217,9 +230,15 @@ class MapService:
         return 0
 
     def _quarantine(self, seq: int, unit_id: str, reason: str) -> None:
-        """Move journal record ``seq`` to quarantine (never replayed again) and log it."""
-        self.journal.quarantine(seq, reason)
-        logger.error("journal seq %d (unit %r) quarantined: %s", seq, unit_id, reason)
+        """Move journal record ``seq`` to quarantine (never replayed again) and log it
+        (a failure to move it is logged too: start-up then meets the record again)."""
+        try:
+            self.journal.quarantine(seq, reason)
+        except Exception:
+            logger.exception("journal seq %d (unit %s) could not be quarantined: %s",
+                             seq, quote(unit_id), reason)  # fmt: skip
+            return
+        logger.error("journal seq %d (unit %s) quarantined: %s", seq, quote(unit_id), reason)
 
     def close(self) -> None:
         """Stop the ingest thread (after what is queued), close the journal, unlock."""
@@ -262,8 +281,8 @@ class MapService:
                         logger.exception("ingest failed")
                         _fail(group, exc)
                     else:
-                        if journaled is not None:
-                            self._fuse_queue.put(journaled)
+                        for part in journaled:
+                            self._fuse_queue.put(part)
                 if stop:
                     return
         finally:
@@ -287,31 +306,73 @@ class MapService:
             count += len(item.scans)
         return group, False
 
-    def _admit_and_journal(self, group: list[_Submission]) -> _Journaled | None:
+    def _admit_and_journal(self, group: list[_Submission]) -> list[_Journaled]:
         """State checks per submission (``scan_gate``) and one journal transaction; the
         gate then holds the group's acks, so the next group is checked against it while
-        this one fuses. None when the journal write failed (every submission answered
-        503, nothing changed)."""
-        accepted: list[tuple[_Submission, list[UnitLatest]]] = []
+        this one fuses. Returns what the fusion thread fuses and answers, in order.
+
+        When the group's journal write fails, nothing of it was journaled and the gate
+        forgets it; a group of several submissions is then checked and journaled again
+        submission by submission (``_one_by_one``), so only the submissions whose own
+        write fails are answered 503 and the others as if those had not been there. A
+        refusal (409, 422) is answered only once the group is journaled, since a
+        submission refused beside one that then failed may be accepted without it."""
         check = self.gate.open_group()
-        for sub in group:
-            outcome = check.admit(sub.scans)
+        outcomes = [(sub, check.admit(sub.scans)) for sub in group]
+        try:
+            acks = self._append(check.new)
+        except Exception as exc:  # disk full, I/O error, a bug: nothing was journaled
+            check.abandon()
+            if len(group) > 1:
+                return self._one_by_one(group)
+            self._journal_failed(group[0], exc)
+            return []
+        check.commit(acks)
+        accepted: list[tuple[_Submission, list[UnitLatest]]] = []
+        for sub, outcome in outcomes:
             if isinstance(outcome, IngestError):
                 sub.future.set_exception(outcome)
-                continue
-            accepted.append((sub, outcome))
-        acks: list[Ack] = []
-        if check.new:
-            try:
-                seqs = self.journal.append([scan.journal_record() for scan in check.new])
-            except Exception as exc:  # disk full, I/O error: nothing was journaled
+            else:
+                accepted.append((sub, outcome))
+        return [_Journaled(accepted, check.new, acks)]
+
+    def _one_by_one(self, group: list[_Submission]) -> list[_Journaled]:
+        """``group`` checked and journaled a submission at a time, in order, each in a
+        gate check of its own: a submission whose write fails is answered 503 and leaves
+        no trace; the others go on (one journal transaction, one fsync, each)."""
+        parts: list[_Journaled] = []
+        for sub in group:
+            check = self.gate.open_group()
+            outcome = check.admit(sub.scans)
+            if isinstance(outcome, IngestError):
                 check.abandon()
-                for sub, _ in accepted:
-                    sub.future.set_exception(IngestError(503, f"journal write failed: {exc}"))
-                return None
-            acks = [Ack(seq, seqs[-1]) for seq in seqs]
-        check.commit(acks)
-        return _Journaled(accepted, check.new, acks)
+                sub.future.set_exception(outcome)
+                continue
+            try:
+                acks = self._append(check.new)
+            except Exception as exc:
+                check.abandon()
+                self._journal_failed(sub, exc)
+                continue
+            check.commit(acks)
+            parts.append(_Journaled([(sub, outcome)], check.new, acks))
+        return parts
+
+    def _append(self, scans: list[Scan]) -> list[Ack]:
+        """Journal ``scans`` in one transaction (durable when it returns); their acks,
+        each with the map version that includes them all (the last seq)."""
+        if not scans:
+            return []
+        seqs = self.journal.append([scan.journal_record() for scan in scans])
+        return [Ack(seq, seqs[-1]) for seq in seqs]
+
+    def _journal_failed(self, sub: _Submission, exc: Exception) -> None:
+        """Answer ``sub`` 503 (nothing of it was journaled) and log its units and why
+        (one template: the log's rate limit, ``lograte``, bounds a flood of them)."""
+        reason = clip(f"{type(exc).__name__}: {exc}")
+        logger.error("journal write failed for unit %s (%d scans): %s",
+                     _units(sub.scans), len(sub.scans), reason)  # fmt: skip
+        sub.future.set_exception(IngestError(503, f"journal write failed: {clip(str(exc))}"))
 
     def _fuse_loop(self) -> None:
         """Stage 2 (thread ``map-fuse``): fuse each journaled group in order, then answer
@@ -328,11 +389,19 @@ class MapService:
                 _fail([sub for sub, _ in journaled.accepted], exc)
 
     def _fuse(self, journaled: _Journaled) -> None:
-        """Fuse a journaled group's new scans (the costmap follows lazily) and answer it."""
+        """Fuse a journaled group's new scans (the costmap follows lazily) and answer it.
+        When fusing the group fails, it is fused submission by submission
+        (``_fuse_apart``) and only the submissions that fail are answered with the error."""
+        failed: dict[int, IngestError] = {}  # slot among the new scans -> its answer
         if journaled.new:
             with self._lock:
                 t0 = time.perf_counter()
-                results = self.belief.fuse_many(journaled.new)
+                try:
+                    results = self.belief.fuse_many(journaled.new)
+                except Exception:
+                    logger.exception("fusing a group of %d scans failed: fusing them apart",
+                                     len(journaled.new))  # fmt: skip
+                    results, failed = self._fuse_apart(journaled)
                 self.version = journaled.acks[-1].map_version
                 self._dirty += [r.box for r in results]
                 if time.monotonic() - self._costmap_refreshed >= self._refresh_s:
@@ -342,7 +411,46 @@ class MapService:
                 self.fusion_seconds += time.perf_counter() - t0
                 self._since_snapshot += len(journaled.new)
         for sub, entries in journaled.accepted:
-            sub.future.set_result(GroupCheck.answers(entries, journaled.acks))
+            error = next((failed[e.slot] for e in entries if e.slot in failed), None)
+            if error is not None:
+                sub.future.set_exception(error)
+            else:
+                sub.future.set_result(GroupCheck.answers(entries, journaled.acks))
+
+    def _fuse_apart(
+        self, journaled: _Journaled
+    ) -> tuple[list[FusionResult], dict[int, IngestError]]:
+        """Fuse a group's new scans a submission at a time, in journal order (the lock
+        held). A submission whose scans cannot be fused changes nothing (``fuse_many``
+        builds its arguments before its kernel, which raises nothing), so it fails
+        whole: its journal records are quarantined (never replayed) and logged, and the
+        slots of its scans map to its answer, a 500. Returns the fused scans' results and
+        those answers."""
+        results: list[FusionResult] = []
+        failed: dict[int, IngestError] = {}
+        done = 0  # slots before this are fused or failed
+        for _, entries in journaled.accepted:
+            slots = [e.slot for e in entries if e.slot is not None and e.slot >= done]
+            if not slots:
+                continue
+            own = range(done, max(slots) + 1)
+            done = own.stop
+            scans = journaled.new[own.start : own.stop]
+            try:
+                results += self.belief.fuse_many(scans)
+            except Exception as exc:
+                reason = clip(f"fusion failed: {type(exc).__name__}: {exc}")
+                seqs = [journaled.acks[slot].seq for slot in own]
+                for seq, scan in zip(seqs, scans, strict=True):
+                    self._quarantine(seq, scan.unit_id, reason)
+                error = IngestError(
+                    500,
+                    f"scan: the map could not fuse the scans of unit {_units(scans)} (a "
+                    f"server fault, logged); set aside as journal seqs {seqs}, not in the "
+                    f"map: {reason}",
+                )
+                failed.update(dict.fromkeys(own, error))
+        return results, failed
 
     def _costmap_current(self) -> None:
         """Bring the costmap up to the belief: the boxes fused since its last refresh,

@@ -17,6 +17,7 @@ from typing import Any
 from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
+from mapserver.core.text import quote
 from mapserver.service.map_clock import MapClock
 
 
@@ -144,12 +145,12 @@ class GroupCheck:
             if scan.stamp == last.stamp:
                 return IngestError(
                     409,
-                    f"{where}stamp: unit {scan.unit_id!r} already sent another scan at "
+                    f"{where}stamp: unit {quote(scan.unit_id)} already sent another scan at "
                     f"stamp {scan.stamp} (a retry must repeat the scan exactly)",
                 )
             return IngestError(
                 409,
-                f"{where}stamp: unit {scan.unit_id!r} already sent stamp {last.stamp}, "
+                f"{where}stamp: unit {quote(scan.unit_id)} already sent stamp {last.stamp}, "
                 f"stamps must not go backwards, got {scan.stamp}",
             )
         geometry = self._gate.geometry

@@ -86,6 +86,7 @@ from typing import Any, Literal
 import numpy as np
 
 from mapserver.core.errors import FleetmapError
+from mapserver.core.text import quote
 
 logger = logging.getLogger(__name__)
 
@@ -443,7 +444,8 @@ class Journal:
         for record in self.records_after(seq, until_stamp, page_size):
             if record.scan is None:
                 raise JournalError(
-                    f"{self.path}: seq {record.seq} (unit {record.unit_id!r}): {record.problem}"
+                    f"{self.path}: seq {record.seq} (unit {quote(record.unit_id)}): "
+                    f"{record.problem}"
                 )
             yield record.seq, record.scan
 
@@ -761,7 +763,7 @@ def _unit_and_stamp(scan: Mapping[str, Any], index: int) -> tuple[str, float]:
         raise ValueError(f"scans[{index}] must be a scan object, got {type(scan).__name__}")
     unit_id, stamp = scan.get("unit_id"), scan.get("stamp")
     if not isinstance(unit_id, str) or not unit_id:
-        raise ValueError(f"scans[{index}].unit_id must be a non-empty string, got {unit_id!r}")
+        raise ValueError(f"scans[{index}].unit_id must be a non-empty string, got {quote(unit_id)}")
     if isinstance(stamp, bool) or not isinstance(stamp, int | float) or not math.isfinite(stamp):
         raise ValueError(f"scans[{index}].stamp must be a finite number, got {stamp!r}")
     return unit_id, float(stamp)
