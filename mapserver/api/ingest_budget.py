@@ -120,7 +120,6 @@ class IngestBudget:
                 cost = costs.setdefault((TOKEN, token), [0.0, 0.0])
                 cost[0] += beams
                 cost[1] += 1
-        self.expire(now)
         for key, cost in costs.items():
             self._refuse_past(key, cost, now)
         if charge:
@@ -129,14 +128,13 @@ class IngestBudget:
                 for i in range(2):
                     bucket.levels[i] -= cost[i]
                     bucket.spent[i] += cost[i]
+            self.expire(now)
 
     def check_token(self, token: str | None) -> None:
         """Before a request's body is read: Throttled when ``token``'s bucket cannot admit
         even one scan of one beam (it is in debt), so its body need not be read at all."""
         if token is not None and self.budgets[TOKEN].enabled:
-            now = self.clock()
-            self.expire(now)
-            self._refuse_past((TOKEN, token), [1.0, 1.0], now)
+            self._refuse_past((TOKEN, token), [1.0, 1.0], self.clock())
 
     def expire(self, now: float) -> None:
         """Drop the buckets that have refilled to full by ``now``, and the least recently
