@@ -69,11 +69,10 @@ class Admission:
         """``work()`` on a worker thread once it has a turn; 429 when the queue is full."""
         if self.admitted >= self.running + self.waiting:
             self.refused += 1
-            raise HTTPException(
-                429,
+            raise too_many(
                 f"{self.what}: the server is busy ({self.running} computing and "
                 f"{self.waiting} waiting at most); retry after {self.retry_after_s} s",
-                headers={"Retry-After": str(self.retry_after_s)},
+                self.retry_after_s,
             )
         if self._turns is None:
             self._turns = asyncio.Semaphore(self.running)
@@ -93,6 +92,12 @@ class Admission:
     def close(self) -> None:
         """Stop the workers once they finish what they compute."""
         self._workers.shutdown(wait=True, cancel_futures=True)
+
+
+def too_many(detail: str, retry_after_s: int) -> HTTPException:
+    """The server's 429 (for heavy reads here, for scans past a budget in
+    ``ingest_budget``): ``detail`` and ``Retry-After`` in whole seconds (at least 1)."""
+    return HTTPException(429, detail, headers={"Retry-After": str(max(1, int(retry_after_s)))})
 
 
 def _lower_priority(nice: int) -> None:

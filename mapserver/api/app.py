@@ -33,6 +33,7 @@ from mapserver.api import (
 from mapserver.api.admission import Admission
 from mapserver.api.auth import openapi_security
 from mapserver.api.guards import BodyMiddleware, LocalOnlyMiddleware
+from mapserver.api.ingest_budget import budget_from_settings
 from mapserver.api.metrics import ServerMetrics, method_label
 from mapserver.api.planning import CostmapPlanner, GridPlanning
 from mapserver.api.routes_scans import INGEST
@@ -90,6 +91,7 @@ def create_app(
     app.state.metrics = ServerMetrics(service)
     app.state.tokens = settings.token_table()
     app.state.units = UnitBoard()
+    app.state.ingest_budget = budget_from_settings(settings.ingest, time.monotonic)
     reads = settings.reads
     app.state.query_admission = Admission(
         "query",

@@ -1,6 +1,6 @@
-"""Prometheus metrics of one server (its own registry): scans fused, fusion time, request
-latency, journal size, map version, quarantined journal records, failed snapshots, heavy
-reads admitted and refused."""
+"""Prometheus metrics of one server (its own registry): scans fused, refused and
+throttled (ingest budgets), fusion time, request latency, journal size, map version,
+quarantined journal records, failed snapshots, heavy reads admitted and refused."""
 
 from __future__ import annotations
 
@@ -37,6 +37,16 @@ class ServerMetrics:
             ["status"],
             registry=self.registry,
         )
+        self.scans_throttled = Counter(
+            "fleetmap_scans_throttled",
+            "Scan requests refused with 429 past a unit's or a token's ingest budget, by "
+            "scope (unit, token) and limit (beams, scans)",
+            ["scope", "limit"],
+            registry=self.registry,
+        )
+        for scope in ("unit", "token"):
+            for limit in ("beams", "scans"):
+                self.scans_throttled.labels(scope, limit)  # listed at 0 from the start
         self.request_latency = Histogram(
             "fleetmap_request_seconds",
             "HTTP request latency [s] by method, route and status",

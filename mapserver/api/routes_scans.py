@@ -7,6 +7,7 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
 
+from mapserver.api import ingest_budget
 from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, parse_json
 from mapserver.api.guards import media_type
@@ -20,7 +21,7 @@ from mapserver.service.scan_gate import IngestError
 router = APIRouter(tags=["scans"])
 ADMIT_WRITE = require(WRITE)
 
-ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 503)}
+ERRORS = {status: {"model": ErrorOut} for status in (400, 401, 403, 409, 413, 415, 422, 429, 503)}
 
 
 async def _body(request: Request, batch: bool) -> Any:
@@ -61,7 +62,11 @@ async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
 async def ingest_scan(request: Request) -> dict[str, int]:
     """``POST /v1/scans``: admit, parse, submit; the ack as a JSON object."""
     await ADMIT_WRITE(request)
-    scan = _parse(request, await _body(request, batch=False), "")
+    ingest_budget.refuse_token_in_debt(request)
+    body = await _body(request, batch=False)
+    ingest_budget.look(request, [body])
+    scan = _parse(request, body, "")
+    ingest_budget.charge(request, [scan])
     (ack,) = await _submit(request, [scan])
     return {"seq": ack.seq, "map_version": ack.map_version}
 
@@ -69,6 +74,7 @@ async def ingest_scan(request: Request) -> dict[str, int]:
 async def ingest_batch(request: Request) -> dict[str, list[dict[str, int]]]:
     """``POST /v1/scans/batch``: all the scans or none; one ack each, in order."""
     await ADMIT_WRITE(request)
+    ingest_budget.refuse_token_in_debt(request)
     body = await _body(request, batch=True)
     limits = request.app.state.settings.limits
     items = body.get("scans") if isinstance(body, dict) else None
@@ -76,7 +82,9 @@ async def ingest_batch(request: Request) -> dict[str, list[dict[str, int]]]:
         raise HTTPException(422, f"scans: must be a non-empty list of scans, got {quote(items)}")
     if len(items) > limits.max_batch:
         raise HTTPException(422, f"scans: at most {limits.max_batch} per batch, got {len(items)}")
+    ingest_budget.look(request, items)
     scans = [_parse(request, item, f"scans[{i}].") for i, item in enumerate(items)]
+    ingest_budget.charge(request, scans)
     acks = await _submit(request, scans)
     return {"acks": [{"seq": a.seq, "map_version": a.map_version} for a in acks]}
 

@@ -21,8 +21,8 @@ turns all problems into one ``SettingsError`` with one line per problem.
 Security: bearer tokens with roles (``unit`` posts scans and unit states as the units it
 lists, ``reader`` reads, ``admin`` does both, as any unit). With no token configured the
 server is open, and an open server may only bind a loopback address (127.0.0.0/8, ::1,
-``localhost``) and answers only loopback Host and Origin headers. ``limits`` and
-``server`` bound what one client can take: docs/server-safety.md lists them.
+``localhost``) and answers only loopback Host and Origin headers. ``limits``, ``server``
+and ``ingest`` bound what one client can take: docs/server-safety.md lists them.
 """
 
 from __future__ import annotations
@@ -287,6 +287,37 @@ class ReadSettings(Section):
     plan_landmarks: int = Field(default=6, ge=0, le=32)
 
 
+class IngestSettings(Section):
+    """Fair ingest (``mapserver.api.ingest_budget``, docs/server-safety.md): what one unit,
+    and one token, may post. A request past a budget is refused with 429 and
+    ``Retry-After`` before its scans are queued; the budgets refill continuously.
+
+    unit_beams_per_s, unit_scans_per_s: [beams/s], [scans/s] one unit id may post,
+        summed over every token and connection posting as it. Defaults 60,000 and 100:
+        1.5x and 5x what a 20 Hz, 2,000-beam LiDAR posts (40,000 beams/s, 20 scans/s).
+    token_beams_per_s, token_scans_per_s: [beams/s], [scans/s] one token may post,
+        whichever units it posts as (only on a server with tokens; an open server cannot
+        tell its clients apart). Defaults 2,000,000 and 2,000: a simulator posting a
+        100-unit fleet at 10 Hz x 1,080 beams (1.08 M beams/s) behind one token, with
+        about 2x headroom.
+    burst_s: [s] of each budget a unit or token may post at once on top of its rate (the
+        bucket's size): a unit quiet that long may post that much in one go, e.g. a
+        backlog after a network drop (the default 10 s: 600,000 beams, 15 s of the 20 Hz
+        LiDAR's scans). A request larger than the whole burst still passes from a full
+        bucket; the unit then waits off the excess.
+    max_tracked: units and tokens whose buckets are remembered at most (a bucket that
+        has refilled is forgotten; past this the least recently used goes first).
+    Any rate null or 0: that limit is off.
+    """
+
+    unit_beams_per_s: float | None = Field(default=60_000.0, ge=0, allow_inf_nan=False)
+    unit_scans_per_s: float | None = Field(default=100.0, ge=0, allow_inf_nan=False)
+    token_beams_per_s: float | None = Field(default=2_000_000.0, ge=0, allow_inf_nan=False)
+    token_scans_per_s: float | None = Field(default=2_000.0, ge=0, allow_inf_nan=False)
+    burst_s: float = Field(default=10.0, gt=0, le=3600, allow_inf_nan=False)
+    max_tracked: int = Field(default=100_000, gt=0)
+
+
 class ServerSettings(Section):
     """How ``fleetmap serve`` treats connections and its log (docs/server-safety.md).
 
@@ -355,7 +386,7 @@ class Settings(BaseSettings):
         own range_max), on top of ``sensor_model.no_return_range`` (the smaller wins).
     tokens: bearer tokens (``TokenSettings``); none means an open server on loopback only,
         which accepts only requests whose Host is loopback and whose Origin, if any, is.
-    limits, clock, reads, server, journal: see their sections.
+    limits, clock, reads, server, journal, ingest: see their sections.
     """
 
     model_config = SettingsConfigDict(
@@ -381,6 +412,7 @@ class Settings(BaseSettings):
     reads: ReadSettings = ReadSettings()
     server: ServerSettings = ServerSettings()
     journal: JournalSettings = JournalSettings()
+    ingest: IngestSettings = IngestSettings()
 
     _static_map: RosMap | None = PrivateAttr(default=None)
 

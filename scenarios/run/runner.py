@@ -27,6 +27,11 @@ __all__ = ["Progress", "RunOptions", "grid_geometry", "run"]
 
 Progress = Callable[[float, float], None]
 
+SIM_SERVER = {"ingest": {"unit_beams_per_s": None, "unit_scans_per_s": None}}
+"""What a run's own server changes from the defaults: no per-unit ingest budget, which
+is counted in wall seconds, while a simulation faster than real time posts each unit's
+scans that many times faster (its one client is the simulation, on loopback)."""
+
 
 def run(
     setup: Scenario,
@@ -48,7 +53,7 @@ def run(
     try:
         if server_url is None:
             data_dir = Path(tmp.name) / "data" if data_dir is None else Path(data_dir)
-            server = EmbeddedServer(data_dir, setup.server_overrides())
+            server = EmbeddedServer(data_dir, {**setup.server_overrides(), **SIM_SERVER})
             server_url = server.url
             if announce is not None:
                 announce(f"map server for this run: {server_url}/ (the live viewer)")

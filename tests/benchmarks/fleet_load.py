@@ -55,6 +55,7 @@ import json  # noqa: E402
 import math  # noqa: E402
 import resource  # noqa: E402
 import socket  # noqa: E402
+import struct  # noqa: E402
 import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
@@ -139,10 +140,10 @@ class SyntheticUnit:
         r[r > RANGE_MAX] = no_return
         return r
 
-    def body(self, n: int, batch: bool = False) -> bytes:
-        """The unit's ``n``-th scan (stamp n * 0.1 s) in the unit's encoding; ``batch``:
-        as a one-scan ``/v1/scans/batch`` body."""
-        stamp = round(n * 0.1, 6)
+    def body(self, n: int, batch: bool = False, stamp: float | None = None) -> bytes:
+        """The unit's ``n``-th scan (stamp n * 0.1 s, or ``stamp`` [s]) in the unit's
+        encoding; ``batch``: as a one-scan ``/v1/scans/batch`` body."""
+        stamp = round(n * 0.1, 6) if stamp is None else stamp
         x, y, yaw = self.pose(stamp)
         ranges = self.ranges(x, y, yaw)
         if self.encoding == "binary":
@@ -187,14 +188,15 @@ class Tally:
 
 def run_unit(
     unit: SyntheticUnit, port: int, path: str, start: float, stop: float, period: float,
-    timeout: float, batch: bool, tally: Tally,
+    timeout: float, batch: bool, tally: Tally, first_scan: int = 0,
 ) -> None:  # fmt: skip
     """Closed loop on one keep-alive connection: post, read the reply, sleep to the next
     slot (late: post at once; ``period`` 0: flat out, the next post at once until
-    ``stop``). After a transport error the next post reconnects."""
+    ``stop``). After a transport error the next post reconnects. The unit's scans are
+    numbered from ``first_scan`` (a later run on the same server: new stamps)."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
     headers = HEADERS[unit.encoding]
-    slot, n = 0, 0
+    slot, n = 0, first_scan
     try:
         while (start + slot * period if period else time.monotonic()) < stop:
             delay = start + slot * period - time.monotonic()
@@ -229,11 +231,11 @@ def run_unit(
 
 def load(
     port: int, args: argparse.Namespace, seconds: float, flat_out: bool = False,
-    rss_of: LoggedServer | None = None,
+    rss_of: LoggedServer | None = None, first_scan: int = 0,
 ) -> tuple[Tally, list, float]:  # fmt: skip
     """Run every unit in its own thread against ``port`` for ``seconds`` (``flat_out``: no
-    slots) and sample ``rss_of``'s RSS every RSS_EVERY s; (the units' tally,
-    [(t [s], RSS [MiB])], wall time [s])."""
+    slots; scans numbered from ``first_scan``) and sample ``rss_of``'s RSS every
+    RSS_EVERY s; (the units' tally, [(t [s], RSS [MiB])], wall time [s])."""
     columns = lattice_columns(args.units)
     units = [SyntheticUnit(k, columns, args.beams, args.encoding) for k in range(args.units)]
     for unit in units:
@@ -256,6 +258,7 @@ def load(
                 args.timeout,
                 args.batch_endpoint,
                 tally,
+                first_scan,
             ),
             daemon=True,
         )
@@ -313,6 +316,164 @@ def flat_out_rates(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
             "share_of_ceiling": our_rate / bare_rate, "flat_out_p99_ms": p99}  # fmt: skip
 
 
+class GreedyClient:
+    """One client posting ``--greedy-beams``-beam scans flat out on
+    ``--greedy-connections`` keep-alive connections, as ``--greedy-units`` unit ids in
+    turn (``greedy-0`` ...), ignoring ``Retry-After`` (``--greedy-honours-retry-after``:
+    it waits as told). Its stamps follow the normal units' clock (``stamp0`` + the time
+    since ``clock0`` [s], unique), so the clock rule does not refuse them; each body is
+    encoded once and only its stamp changes (the generator must not eat the cores)."""
+
+    def __init__(self, args: argparse.Namespace, port: int, stamp0: float) -> None:
+        self.args, self.port, self.stamp0 = args, port, stamp0
+        self.clock0 = time.monotonic()
+        self.last_stamp = 0.0
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.tally = Tally()
+        self.retry_after: Counter = Counter()  # Retry-After value [s] -> 429s carrying it
+        self.templates = [self._template(f"greedy-{k}") for k in range(args.greedy_units)]
+        self.threads = [
+            threading.Thread(target=self._run, args=(c,), daemon=True)
+            for c in range(args.greedy_connections)
+        ]
+
+    def _template(self, unit_id: str) -> tuple[bytes, bytes]:
+        """(bytes before the stamp, bytes after it) of the unit's scan body."""
+        unit = SyntheticUnit(0, 1, self.args.greedy_beams, self.args.encoding)
+        unit.unit_id = unit_id
+        if self.args.encoding == "binary":
+            body = unit.body(0, stamp=0.0)
+            return body[:12], body[20:]  # the stamp is the float64 at byte 12
+        content = unit.body(0, stamp=0.0)
+        marker = b'"stamp":0.0'
+        before, _, after = content.partition(marker)
+        return before + b'"stamp":', after
+
+    def _stamp(self) -> float:
+        with self.lock:
+            self.last_stamp = max(
+                self.last_stamp + 1e-4, round(self.stamp0 + time.monotonic() - self.clock0, 4)
+            )
+            return self.last_stamp
+
+    def body(self, n: int) -> bytes:
+        before, after = self.templates[n % len(self.templates)]
+        stamp = self._stamp()
+        if self.args.encoding == "binary":
+            return before + struct.pack("<d", stamp) + after
+        return before + repr(stamp).encode() + after
+
+    def _run(self, connection: int) -> None:
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=self.args.timeout)
+        headers = HEADERS[self.args.encoding]
+        n = connection
+        tally = Tally()
+        while not self.stop.is_set():
+            content = self.body(n)
+            n += self.args.greedy_connections
+            tally.posted += 1
+            t0 = time.perf_counter()
+            try:
+                conn.request("POST", "/v1/scans", body=content, headers=headers)
+                reply = conn.getresponse()
+                reply.read()
+            except (OSError, http.client.HTTPException) as exc:
+                tally.transport[type(exc).__name__] += 1
+                conn.close()
+                continue
+            tally.latencies.append(time.perf_counter() - t0)
+            tally.statuses[reply.status] += 1
+            tally.acknowledged += reply.status == 200
+            if reply.status == 429:
+                wait = reply.getheader("Retry-After")
+                with self.lock:
+                    self.retry_after[wait] += 1
+                if self.args.greedy_honours_retry_after and wait is not None:
+                    self.stop.wait(float(wait))
+            if reply.getheader("connection", "").lower() == "close":
+                conn.close()
+        conn.close()
+        with self.lock:
+            self.tally.add(tally)
+
+    def __enter__(self) -> GreedyClient:
+        for thread in self.threads:
+            thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        for thread in self.threads:
+            thread.join()
+
+
+def rate_line(label: str, tally: Tally, args: argparse.Namespace, wall: float) -> dict:
+    """Print and return the normal units' rate, share of offered and latency."""
+    ms = np.array(tally.latencies) * 1e3 if tally.latencies else np.array([math.nan])
+    offered = args.units * args.rate
+    figures = {
+        "acknowledged_per_s": tally.acknowledged / wall,
+        "share_of_offered": tally.acknowledged / wall / offered,
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "statuses": {str(k): v for k, v in sorted(tally.statuses.items())},
+        "transport_errors": dict(tally.transport),
+    }
+    print(
+        f"{label:<22} acknowledged {figures['acknowledged_per_s']:.1f}/s of {offered:g}/s "
+        f"({figures['share_of_offered']:.0%})  p50 {figures['p50_ms']:.1f} ms  "
+        f"p99 {figures['p99_ms']:.1f} ms  statuses {figures['statuses']}"
+        f"{'  transport ' + str(figures['transport_errors']) if tally.transport else ''}"
+    )
+    return figures
+
+
+def greedy_compare(args: argparse.Namespace, tmp: Path) -> dict:
+    """The normal units for ``--seconds`` alone, then as long again beside the greedy
+    client, on one server (default settings but the grid); their rate and latency in
+    each phase, and the greedy client's replies and acknowledged beams/s."""
+    server = LoggedServer(tmp / "greedy", {"grid": grid_for(args.units)})
+    try:
+        warm_up(server.url, args)
+        alone, _, wall_alone = load(server.port, args, args.seconds)
+        first = math.ceil(args.seconds * args.rate) + 20  # the next phase's scans: new stamps
+        with GreedyClient(args, server.port, stamp0=first * 0.1) as greedy:
+            time.sleep(1.0)  # the greedy client first
+            beside, _, wall_beside = load(server.port, args, args.seconds, first_scan=first)
+            greedy_wall = time.monotonic() - greedy.clock0
+        metrics = httpx.get(server.url + "/metrics", timeout=10).text
+    finally:
+        server.stop()
+    print(
+        f"normal units: {args.units} x {args.rate:g} Hz x {args.beams} beams ({args.encoding}); "
+        f"greedy: {args.greedy_connections} connections x {args.greedy_beams} beams as "
+        f"{args.greedy_units} unit id(s), flat out, "
+        f"{'honouring' if args.greedy_honours_retry_after else 'ignoring'} Retry-After"
+    )
+    figures = {
+        "alone": rate_line("alone", alone, args, wall_alone),
+        "beside_greedy": rate_line("beside the greedy", beside, args, wall_beside),
+    }
+    g = greedy.tally
+    figures["greedy"] = {
+        "statuses": {str(k): v for k, v in sorted(g.statuses.items())},
+        "acknowledged_beams_per_s": g.acknowledged * args.greedy_beams / greedy_wall,
+        "retry_after": dict(greedy.retry_after),
+        "p50_ms": float(np.percentile(g.latencies, 50)) * 1e3 if g.latencies else math.nan,
+    }
+    throttled = [
+        line for line in metrics.splitlines() if line.startswith("fleetmap_scans_throttled_total")
+    ]
+    print(
+        f"greedy client: statuses {figures['greedy']['statuses']}  acknowledged "
+        f"{figures['greedy']['acknowledged_beams_per_s']:.0f} beams/s  p50 "
+        f"{figures['greedy']['p50_ms']:.1f} ms  Retry-After {figures['greedy']['retry_after']}"
+    )
+    print("metrics: " + ("; ".join(throttled) if throttled else "no fleetmap_scans_throttled"))
+    return figures
+
+
 def wait_for_port(port: int, timeout: float = 60.0) -> None:
     """Until something accepts connections on 127.0.0.1:``port``."""
     deadline = time.monotonic() + timeout
@@ -365,8 +526,24 @@ def main() -> None:
     parser.add_argument(
         "--batch-endpoint", action="store_true", help="one-scan POST /v1/scans/batch"
     )
+    parser.add_argument(
+        "--greedy-connections", type=int, default=0,
+        help="instead of the run above: the units alone, then beside a greedy client "
+        "posting flat out on this many connections",
+    )  # fmt: skip
+    parser.add_argument("--greedy-beams", type=int, default=16384, help="its beams per scan")
+    parser.add_argument("--greedy-units", type=int, default=1, help="unit ids it posts as")
+    parser.add_argument(
+        "--greedy-honours-retry-after", action="store_true", help="it waits after a 429"
+    )
     parser.add_argument("--json", action="store_true", help="print figures as JSON last")
     args = parser.parse_args()
+    if args.greedy_connections > 0:
+        with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
+            figures = greedy_compare(args, Path(tmp))
+        if args.json:
+            print(json.dumps(figures))
+        return
 
     with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
         server = LoggedServer(Path(tmp) / "data", {"grid": grid_for(args.units)})
