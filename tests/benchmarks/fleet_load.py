@@ -142,7 +142,11 @@ class SyntheticUnit:
     def body(self, n: int, batch: bool = False) -> bytes:
         """The unit's ``n``-th scan (stamp n * 0.1 s) in the unit's encoding; ``batch``:
         as a one-scan ``/v1/scans/batch`` body."""
-        stamp = round(n * 0.1, 6)
+        return self.body_at(round(n * 0.1, 6), batch)
+
+    def body_at(self, stamp: float, batch: bool = False) -> bytes:
+        """The unit's scan at ``stamp`` [s] (its pose then) in the unit's encoding;
+        ``batch``: as a one-scan ``/v1/scans/batch`` body."""
         x, y, yaw = self.pose(stamp)
         ranges = self.ranges(x, y, yaw)
         if self.encoding == "binary":
@@ -185,6 +189,35 @@ class Tally:
         self.last_reply = max(self.last_reply, other.last_reply)
 
 
+def post_once(
+    conn: http.client.HTTPConnection, path: str, content: bytes, headers: dict[str, str],
+    tally: Tally, method: str = "POST",
+) -> bytes | None:  # fmt: skip
+    """One request on ``conn``, counted in ``tally`` (posted, status or transport error,
+    latency [s], acknowledged if 200); the reply's body, or None when no reply came
+    (the connection is then closed: the next request reconnects)."""
+    tally.posted += 1
+    t0 = time.perf_counter()
+    try:
+        conn.request(method, path, body=content, headers=headers)
+        reply = conn.getresponse()
+        data = reply.read()
+    except TimeoutError:
+        tally.transport["timeout"] += 1
+        conn.close()
+        data = None
+    except (OSError, http.client.HTTPException) as exc:
+        tally.transport[type(exc).__name__] += 1
+        conn.close()
+        data = None
+    else:
+        tally.latencies.append(time.perf_counter() - t0)
+        tally.statuses[reply.status] += 1
+        tally.acknowledged += reply.status == 200
+    tally.last_reply = time.monotonic()
+    return data
+
+
 def run_unit(
     unit: SyntheticUnit, port: int, path: str, start: float, stop: float, period: float,
     timeout: float, batch: bool, tally: Tally,
@@ -202,24 +235,8 @@ def run_unit(
                 time.sleep(delay)
             content = unit.body(n, batch)
             n += 1
-            tally.posted += 1
-            t0 = time.perf_counter()
-            try:
-                conn.request("POST", path, body=content, headers=headers)
-                reply = conn.getresponse()
-                reply.read()
-            except TimeoutError:
-                tally.transport["timeout"] += 1
-                conn.close()
-            except (OSError, http.client.HTTPException) as exc:
-                tally.transport[type(exc).__name__] += 1
-                conn.close()
+            if post_once(conn, path, content, headers, tally) is None:
                 time.sleep(period)  # a refused connection would spin otherwise
-            else:
-                tally.latencies.append(time.perf_counter() - t0)
-                tally.statuses[reply.status] += 1
-                tally.acknowledged += reply.status == 200
-            tally.last_reply = time.monotonic()
             if period:
                 due = math.floor((time.monotonic() - start) / period)  # the slot running now
                 slot = max(slot + 1, due)  # late: post at once; the slots passed are missed
