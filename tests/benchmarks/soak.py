@@ -204,6 +204,8 @@ class Run:
 def run_honest(run: Run, unit: SyntheticUnit, plan: Plan, tally: Tally) -> None:
     """One honest unit: waits for its join tick, posts tick after tick, docks, reboots."""
     clock, uid = run.clock, unit.unit_id
+    if plan.join >= run.ticks:
+        return  # joins after the run
     clock.wait_floor(plan.join, run.halt)
     conn, n = run.connect(), clock.join(uid)
     try:
@@ -286,7 +288,10 @@ def totals(tallies: list[Tally]) -> Tally:
 
 
 def refused(tallies: list[Tally]) -> int:
-    return sum(t.posted - t.acknowledged for t in tallies)
+    """Replies other than 200, and requests that got no reply (in flight: not counted)."""
+    return sum(n for t in tallies for s, n in t.statuses.items() if s != 200) + sum(
+        n for t in tallies for n in t.transport.values()
+    )
 
 
 def restart(server: LoggedServer, settings: dict, last_version: int) -> dict[str, Any]:
@@ -397,7 +402,9 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
         marks, next_sample = [0] * len(units), every
         while time.monotonic() < deadline:
             fleet_s = run.clock.floor * step
-            finished = not any(t.is_alive() for t in threads[: len(units)])
+            finished = fleet_s >= ticks * step or not any(
+                t.is_alive() for t in threads[: len(units)]
+            )
             if fleet_s >= next_sample or finished:
                 window = latencies_since(honest_t, marks)
                 real = time.monotonic() - t0
@@ -408,7 +415,7 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
                     "honest_ok": sum(t.acknowledged for t in honest_t),
                     "honest_refused": refused(honest_t),
                     "greedy_ok": g.acknowledged,
-                    "greedy_refused": g.posted - g.acknowledged,
+                    "greedy_refused": refused(greedy_t),
                     "greedy_429": g.statuses.get(429, 0),
                     "data_mib": round(data_dir_bytes(data_dir) / MIB, 1),
                     "journal_mib": round(server.journal_bytes() / MIB, 1),
@@ -450,7 +457,7 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
             "settings": settings,
             "honest_posted": honest.posted,
             "honest_acknowledged": honest.acknowledged,
-            "honest_refused": honest.posted - honest.acknowledged,
+            "honest_refused": refused(honest_t),
             "honest_statuses": codes(honest),
             "greedy_statuses": codes(g),
             "greedy_acknowledged": g.acknowledged,
