@@ -353,7 +353,7 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
     )
     greedy = [
         ClockedUnit(
-            1000 + k,
+            k % 100,  # a bay on the map (beside honest units)
             f"greedy-{k}",
             args.greedy_beams,
             args.encoding,
