@@ -212,8 +212,9 @@ def run_honest(run: Run, unit: SyntheticUnit, plan: Plan, tally: Tally) -> None:
         while not run.halt.is_set() and n < run.ticks:
             if plan.dock is not None and n >= plan.dock:
                 clock.leave(uid)
+                conn.close()  # docked: the server closes idle keep-alive connections anyway
                 clock.wait_floor(plan.back or 0, run.halt)
-                plan.dock, n = None, clock.join(uid)
+                plan.dock, conn, n = None, run.connect(), clock.join(uid)
                 continue
             if plan.reboot is not None and n >= plan.reboot:
                 clock.leave(uid)
