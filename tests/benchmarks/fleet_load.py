@@ -140,10 +140,14 @@ class SyntheticUnit:
         r[r > RANGE_MAX] = no_return
         return r
 
-    def body(self, n: int, batch: bool = False, stamp: float | None = None) -> bytes:
-        """The unit's ``n``-th scan (stamp n * 0.1 s, or ``stamp`` [s]) in the unit's
-        encoding; ``batch``: as a one-scan ``/v1/scans/batch`` body."""
-        stamp = round(n * 0.1, 6) if stamp is None else stamp
+    def body(self, n: int, batch: bool = False) -> bytes:
+        """The unit's ``n``-th scan (stamp n * 0.1 s) in the unit's encoding; ``batch``:
+        as a one-scan ``/v1/scans/batch`` body."""
+        return self.body_at(round(n * 0.1, 6), batch)
+
+    def body_at(self, stamp: float, batch: bool = False) -> bytes:
+        """The unit's scan at ``stamp`` [s] (its pose then) in the unit's encoding;
+        ``batch``: as a one-scan ``/v1/scans/batch`` body."""
         x, y, yaw = self.pose(stamp)
         ranges = self.ranges(x, y, yaw)
         if self.encoding == "binary":
@@ -186,6 +190,35 @@ class Tally:
         self.last_reply = max(self.last_reply, other.last_reply)
 
 
+def post_once(
+    conn: http.client.HTTPConnection, path: str, content: bytes, headers: dict[str, str],
+    tally: Tally, method: str = "POST",
+) -> bytes | None:  # fmt: skip
+    """One request on ``conn``, counted in ``tally`` (posted, status or transport error,
+    latency [s], acknowledged if 200); the reply's body, or None when no reply came
+    (the connection is then closed: the next request reconnects)."""
+    tally.posted += 1
+    t0 = time.perf_counter()
+    try:
+        conn.request(method, path, body=content, headers=headers)
+        reply = conn.getresponse()
+        data = reply.read()
+    except TimeoutError:
+        tally.transport["timeout"] += 1
+        conn.close()
+        data = None
+    except (OSError, http.client.HTTPException) as exc:
+        tally.transport[type(exc).__name__] += 1
+        conn.close()
+        data = None
+    else:
+        tally.latencies.append(time.perf_counter() - t0)
+        tally.statuses[reply.status] += 1
+        tally.acknowledged += reply.status == 200
+    tally.last_reply = time.monotonic()
+    return data
+
+
 def run_unit(
     unit: SyntheticUnit, port: int, path: str, start: float, stop: float, period: float,
     timeout: float, batch: bool, tally: Tally, first_scan: int = 0,
@@ -204,24 +237,8 @@ def run_unit(
                 time.sleep(delay)
             content = unit.body(n, batch)
             n += 1
-            tally.posted += 1
-            t0 = time.perf_counter()
-            try:
-                conn.request("POST", path, body=content, headers=headers)
-                reply = conn.getresponse()
-                reply.read()
-            except TimeoutError:
-                tally.transport["timeout"] += 1
-                conn.close()
-            except (OSError, http.client.HTTPException) as exc:
-                tally.transport[type(exc).__name__] += 1
-                conn.close()
+            if post_once(conn, path, content, headers, tally) is None:
                 time.sleep(period)  # a refused connection would spin otherwise
-            else:
-                tally.latencies.append(time.perf_counter() - t0)
-                tally.statuses[reply.status] += 1
-                tally.acknowledged += reply.status == 200
-            tally.last_reply = time.monotonic()
             if period:
                 due = math.floor((time.monotonic() - start) / period)  # the slot running now
                 slot = max(slot + 1, due)  # late: post at once; the slots passed are missed
@@ -343,9 +360,9 @@ class GreedyClient:
         unit = SyntheticUnit(0, 1, self.args.greedy_beams, self.args.encoding)
         unit.unit_id = unit_id
         if self.args.encoding == "binary":
-            body = unit.body(0, stamp=0.0)
+            body = unit.body_at(0.0)
             return body[:12], body[20:]  # the stamp is the float64 at byte 12
-        content = unit.body(0, stamp=0.0)
+        content = unit.body_at(0.0)
         marker = b'"stamp":0.0'
         before, _, after = content.partition(marker)
         return before + b'"stamp":', after
