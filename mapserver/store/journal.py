@@ -480,10 +480,7 @@ class Journal:
         where, params = "seq > ?", []
         if until_stamp is not None:
             where, params = "seq > ? AND stamp <= ?", [float(until_stamp)]
-        sql = (
-            f"SELECT {self._row_columns} FROM scans "
-            f"WHERE {where} ORDER BY seq LIMIT ?"
-        )
+        sql = f"SELECT {self._row_columns} FROM scans WHERE {where} ORDER BY seq LIMIT ?"
         last = int(seq)
         while True:
             rows = self._read(sql, [last, *params, page_size])
@@ -599,7 +596,13 @@ class Journal:
             unit_id = row.unit_id.decode()
             checksum = row.computed_checksum() if row.checksum is None else row.checksum
             values = (
-                row.seq, unit_id, row.stamp, row.body.decode(), row.ranges, checksum, row.format
+                row.seq,
+                unit_id,
+                row.stamp,
+                row.body.decode(),
+                row.ranges,
+                checksum,
+                row.format,
             )
             statements.append((_IMPORT_SCAN, values))
             statements.append((_UPSERT_UNIT, (unit_id, row.stamp)))

@@ -22,7 +22,6 @@ from mapserver.store.journal import (
     open_journal_for_replay,
 )
 
-
 F32_A = float(np.float32(1.2345678901234567))  # ranges are float32 values (Scan.from_dict)
 F32_B = float(np.float32(0.1 + 0.2))
 
