@@ -368,10 +368,11 @@ class MapService:
         )
         if due and not (self._snapshotter and self._snapshotter.is_alive()):
             taken = self._take_snapshot()
-            self._snapshotter = threading.Thread(
+            saver = threading.Thread(
                 target=self._save_snapshot, args=taken, name="map-snapshot", daemon=True
             )
-            self._snapshotter.start()
+            saver.start()  # before it is published: snapshot() may join it at once
+            self._snapshotter = saver
 
     def snapshot(self) -> int:
         """Save a snapshot of the belief now (waiting for it); returns its seq."""

@@ -125,13 +125,19 @@ def plan_retention(
         past += [s.seq for s in usable if s.seq <= last_seq - keep]
     cut = max(past, default=0)
     newest = {s.seq for s in usable[-policy.keep_snapshots :]}
+    # the anchor: the snapshot replays start from (the new cut, else the one kept at the
+    # last cut), kept whatever the spacing
+    anchor = cut
+    if cut <= deleted_through and deleted_through > 0 and usable:
+        anchor = usable[0].seq
+    anchor = anchor if anchor > 0 else -1
     base = max(cut, deleted_through)
     gap = max(1, (last_seq - base) // ANCHORS)
     kept, previous = set(newest), base
     for info in usable:
         if info.seq < cut or info.seq in newest:
             continue
-        if info.seq == cut or info.seq - previous >= gap:
+        if info.seq == anchor or info.seq - previous >= gap:
             kept.add(info.seq)
             previous = info.seq
     if policy.retain_seconds is None and policy.retain_bytes is None:
