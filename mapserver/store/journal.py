@@ -3,14 +3,19 @@
 One SQLite database file (stdlib ``sqlite3``) in WAL mode holds:
 
 - ``scans``: one row per accepted scan, ``seq`` (INTEGER PRIMARY KEY AUTOINCREMENT: 1, 2,
-  3, ... never reused), ``unit_id``, ``stamp`` [s] and ``body``, the scan's docs/http-api.md 2.1
-  object as compact JSON text (Python's ``json``; a no-return range is written
-  ``Infinity``, which the contract accepts as input and ``json.loads`` reads back). The
-  journal is the replay log: replaying it in ``seq`` order rebuilds the map bit for bit.
+  3, ... never reused), ``unit_id``, ``stamp`` [s], ``body``, the scan's docs/http-api.md
+  2.1 object without its ranges as compact JSON text, ``ranges`` (``format`` 1: float32,
+  byte-shuffled, zlib; NULL: raw float64 as schema 3 wrote). The journal is the replay
+  log: replaying it in ``seq`` order rebuilds the map bit for bit. Index
+  ``scans_unit_stamp`` (unit_id, stamp) serves ``find_scan``.
 - ``units``: the largest stamp journaled per unit, so a restarted server still rejects a
   stamp that goes backwards (409) without reading every scan.
 - ``snapshots``: the grid's arrays as of a ``seq`` (``np.savez`` bytes), only the newest
-  ``keep_snapshots`` kept. Start-up = newest usable snapshot + the scans after it.
+  ``keep_snapshots`` kept (or, with retention, what ``mapserver.store.retention``
+  keeps), each with ``saved_at`` (wall time). Start-up = newest usable snapshot + the
+  scans after it.
+- ``meta``: ``deleted_through``, the seq through which retention deleted the scans (a
+  full replay from seq 0 is possible only while it is 0).
 - ``quarantine``: records taken out of ``scans`` (a checksum that fails, a body that does
   not parse, a scan the server refuses, an admin's drop), kept with their original bytes,
   their seq and the reason, never replayed.
@@ -62,7 +67,8 @@ marked as a fleetmap journal with ``PRAGMA application_id``; opening another fil
 another schema version raises ``JournalError`` naming the path and both versions. A
 version-2 journal (no checksums, no quarantine) is migrated in place by a writable open,
 in one transaction (checksums computed for the rows it holds); a read-only open reads it
-as it is, unchecked.
+as it is, unchecked. A version-3 journal (float64 ranges) is migrated in place to 4 the
+same way, its rows kept as they are (``_migrate``); a read-only open reads it as it is.
 """
 
 from __future__ import annotations
