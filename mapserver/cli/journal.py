@@ -2,17 +2,23 @@
 
 - ``check DATA_DIR [--json]``: read-only. Counts the intact records, checksum failures,
   unparsable records, unreadable seqs, quarantined rows and usable / unusable snapshots,
-  and the last seq. Exit 0 when all is intact, 1 when something is damaged, 2 on usage
-  errors (no journal there, a live server holds it).
+  the last seq and the seq through which retention deleted the scans; when that is not
+  0 and no usable snapshot at or after it remains, the map cannot be rebuilt (damaged).
+  Exit 0 when all is intact, 1 when something is damaged, 2 on usage errors (no journal
+  there, a live server holds it).
 - ``salvage DATA_DIR [--out NEW_DIR] [--json]``: copies every intact record, in seq order
   with its original seq, into a fresh journal in NEW_DIR (default ``DATA_DIR-salvaged``)
   with ``map-settings.json``; damaged records that still read go to NEW_DIR's quarantine,
   quarantined ones stay quarantined. Works on a truncated or partly corrupt file
-  (``mapserver.store.journal_rows``). Snapshots are not copied: the next start-up replays the
-  whole journal. Exit 0 when nothing was lost or damaged, 1 otherwise.
+  (``mapserver.store.journal_rows``). The usable snapshots are copied too, with retention's
+  mark: a journal whose first scans retention deleted rebuilds from them. Exit 0 when
+  nothing was lost or damaged, 1 otherwise.
 - ``drop DATA_DIR --unit U --after STAMP``: moves the unit's scans with stamp > STAMP to
   quarantine ("dropped by admin"), sets the unit's stamp bound to its largest remaining
-  stamp and deletes the snapshots, so the next start-up rebuilds the map from the journal.
+  stamp and deletes the snapshots that include a dropped scan; the older ones stay, so
+  the next start-up rebuilds the map from the newest of them. Refuses (exit 1, nothing
+  changed) when retention deleted the journal's first scans and no usable snapshot
+  predates the first dropped scan.
 
 Each takes a lock on the journal file (``mapserver.store.datadir_lock``: shared for check and
 salvage, exclusive for drop) and refuses to run while a server holds the data dir.
@@ -65,7 +71,8 @@ def add_journal_parser(subparsers: argparse._SubParsersAction) -> None:
          "Reads a damaged or truncated journal row by row; writes NEW_DIR."),
         ("drop", run_drop, "quarantine one unit's scans after a stamp",
          "Moves the unit's scans with stamp > STAMP to quarantine, resets the unit's "
-         "stamp bound and deletes the snapshots (the next start-up replays)."),
+         "stamp bound and deletes the snapshots that include them (the next start-up "
+         "rebuilds from the newest older one)."),
     )  # fmt: skip
     parsers = {}
     for name, run, help_text, description in commands:
@@ -136,6 +143,7 @@ class CheckReport:
     snapshots_usable: int = 0
     snapshots_unusable: int = 0
     last_seq: int = 0
+    deleted_through: int = 0
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -153,7 +161,12 @@ def run_check(args: argparse.Namespace) -> int:
             f"{report.journal}: {report.records} intact records, last seq {report.last_seq}; "
             f"{report.checksum_failures} checksum failures, {report.unparsable} unparsable, "
             f"{report.unreadable} unreadable; {report.quarantined} quarantined; snapshots "
-            f"{report.snapshots_usable} usable, {report.snapshots_unusable} unusable"
+            f"{report.snapshots_usable} usable, {report.snapshots_unusable} unusable; "
+            + (
+                f"retention deleted seqs 1-{report.deleted_through}"
+                if report.deleted_through
+                else "nothing deleted by retention"
+            )
         )
         for problem in report.problems:
             print(f"  damaged: {problem}")
@@ -168,6 +181,7 @@ def check_journal(data_dir: Path) -> CheckReport:
     with readable_copy(path) as readable:
         try:
             with RowReader(readable) as reader:
+                report.deleted_through = reader.deleted_through()
                 _check_rows(reader, report)
                 report.quarantined = len(reader.quarantined())
         except sqlite3.DatabaseError as exc:
@@ -228,6 +242,7 @@ def _check_snapshots(path: Path, data_dir: Path, report: CheckReport) -> None:
         except JournalError as exc:
             report.problems.append(f"the snapshots do not read: {exc}")
             return
+        starts = 0  # usable snapshots a rebuild can start from (seq >= deleted_through)
         for seq in seqs:
             try:
                 snapshot = journal.load_snapshot(seq)
@@ -236,9 +251,15 @@ def _check_snapshots(path: Path, data_dir: Path, report: CheckReport) -> None:
                 problem = str(exc)
             if problem is None:
                 report.snapshots_usable += 1
+                starts += seq >= report.deleted_through
             else:
                 report.snapshots_unusable += 1
                 report.problems.append(f"snapshot at seq {seq}: {problem}")
+        if report.deleted_through and not starts:
+            report.problems.append(
+                f"retention deleted seqs 1-{report.deleted_through} and no usable snapshot "
+                "at or after it remains: the map cannot be rebuilt from this journal"
+            )
 
 
 # ------------------------------------------------------------------------- salvage
@@ -251,6 +272,7 @@ class SalvageReport:
     recovered_ranges: list[tuple[int, int]] = field(default_factory=list)
     quarantined: list[int] = field(default_factory=list)
     lost_ranges: list[tuple[int, int]] = field(default_factory=list)
+    snapshots: list[int] = field(default_factory=list)
 
 
 def run_salvage(args: argparse.Namespace) -> int:
@@ -274,6 +296,7 @@ def run_salvage(args: argparse.Namespace) -> int:
                 f"damaged, kept in quarantine: seqs {_ranges_text(seq_ranges(report.quarantined))}"
             )
         print(f"lost (unreadable): seqs {_ranges_text(report.lost_ranges) or 'none'}")
+        print(f"snapshots copied: seqs {_ranges_text(seq_ranges(report.snapshots)) or 'none'}")
     return 0 if not (report.quarantined or report.lost_ranges) else 1
 
 
@@ -317,10 +340,38 @@ def salvage_journal(source: Path, out: Path) -> SalvageReport:
             stamps = reader.unit_stamps()
             if stamps:
                 journal.raise_unit_stamps(stamps)
+            deleted = reader.deleted_through()
+            if deleted:
+                journal.set_deleted_through(deleted)
+            report.snapshots = _copy_snapshots(readable, journal, deleted)
     report.recovered = len(recovered)
     report.recovered_ranges = seq_ranges(recovered)
     report.lost_ranges = seq_ranges(lost)
     return report
+
+
+def _copy_snapshots(source: Path, journal: Journal, deleted_through: int) -> list[int]:
+    """Copy the snapshots of ``source`` that load (checksum and arrays) and a replay can
+    start from (seq >= ``deleted_through``) into ``journal``; returns their seqs."""
+    copied: list[int] = []
+    try:
+        old = Journal(source, readonly=True)
+    except JournalError:
+        return copied  # the header or schema does not read: no snapshot either
+    with old:
+        try:
+            infos = old.snapshot_infos()
+        except JournalError:
+            return copied
+        for info in infos:
+            if info.seq < deleted_through:
+                continue
+            try:
+                journal.import_snapshot(old.load_snapshot(info.seq), info.saved_at)
+            except JournalError:
+                continue  # unusable: not copied (the new journal's check stays clean)
+            copied.append(info.seq)
+    return copied
 
 
 def _ranges_text(ranges: list[tuple[int, int]]) -> str:
@@ -333,6 +384,7 @@ def run_drop(args: argparse.Namespace) -> int:
         snapshots = len(journal.snapshot_seqs())
         dropped = journal.drop_unit_after(args.unit, args.after, DROP_REASON)
         bound: Any = journal.unit_stamps().get(args.unit, "none")
+        kept = journal.snapshot_seqs()
     if not dropped:
         print(f"nothing to drop: unit {args.unit!r} has no scan with stamp > {args.after}")
         return 0
@@ -341,6 +393,8 @@ def run_drop(args: argparse.Namespace) -> int:
     print(
         f"dropped {len(dropped)} scans of unit {args.unit!r} (seqs {seqs}, stamps "
         f"{min(stamps)}..{max(stamps)}) to quarantine; its stamp bound is now {bound}; "
-        f"deleted {snapshots} snapshots: the next start-up rebuilds the map from the journal"
+        f"deleted {snapshots - len(kept)} snapshots, kept {len(kept)} older ones: the next "
+        "start-up rebuilds the map from "
+        + (f"the snapshot at seq {kept[-1]}" if kept else "the journal's first scan")
     )
     return 0

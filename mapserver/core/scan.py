@@ -84,7 +84,8 @@ class Scan:
     """A planar LiDAR scan taken at ``pose`` at time ``stamp`` [s].
 
     Beam i points at ``pose.yaw + angle_min + i * angle_increment`` [rad] and measured
-    ``ranges[i]`` [m] (float64; NaN where the input was null).
+    ``ranges[i]`` [m] (float64 holding float32 values, the binary wire's and the
+    journal's precision; NaN where the input was null).
     """
 
     unit_id: str
@@ -144,8 +145,16 @@ class Scan:
         return out
 
     @classmethod
-    def from_dict(cls, data: Any, max_beams: int = DEFAULT_MAX_BEAMS) -> Scan:
-        """Validate a docs/http-api.md 2.1 scan object; raises ScanError naming the bad field."""
+    def from_dict(
+        cls, data: Any, max_beams: int = DEFAULT_MAX_BEAMS, float32_ranges: bool = True
+    ) -> Scan:
+        """Validate a docs/http-api.md 2.1 scan object; raises ScanError naming the bad field.
+
+        Ranges are rounded to float32 here, once (the binary wire's precision and what the
+        journal stores), so the scan fused live, its digest and the journaled one agree
+        and a replay rebuilds the map bit for bit; a range beyond float32 becomes
+        +-inf. ``float32_ranges=False`` keeps float64 ranges: only for the records of
+        schema-3 journals, which stored float64 and were fused unrounded."""
         if not isinstance(data, Mapping):
             raise ScanError("scan", data, "must be a JSON object")
         unit_id = data.get("unit_id")
@@ -178,6 +187,9 @@ class Scan:
         if not range_max > range_min:
             raise ScanError("range_max", range_max, f"must be greater than range_min ({range_min})")
         ranges = _ranges(data.get("ranges"), max_beams)
+        if float32_ranges:
+            with np.errstate(over="ignore"):
+                ranges = ranges.astype(np.float32).astype(np.float64)
         if (len(ranges) - 1) * angle_increment > FULL_TURN:
             raise ScanError(
                 "ranges",

@@ -28,6 +28,9 @@ same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots a
 every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time.
 Storage faults (docs/durability.md): an unusable snapshot falls back to an older one or
 to a full replay; a damaged journal record is quarantined, logged and skipped.
+Retention (``journal.retain_seconds``/``retain_bytes``, ``mapserver.store.retention``) runs
+on the snapshot thread after each save; once it deleted the journal's first scans, only a
+snapshot at or after the cut can start a rebuild.
 """
 
 from __future__ import annotations
@@ -67,6 +70,7 @@ from mapserver.service.settings import Settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
 from mapserver.store.journal import Journal, JournalError, journal_path
 from mapserver.store.journal_reading import read_records
+from mapserver.store.retention import apply_retention
 from mapserver.store.snapshot_state import load_snapshot_into
 
 logger = logging.getLogger(__name__)
@@ -136,6 +140,7 @@ class MapService:
             keep_snapshots=settings.journal.keep_snapshots,
         )
         self.snapshot_failures = 0  # snapshot saves that failed (metrics)
+        self.retention = settings.journal.retention()
         self.belief = settings.belief_grid(self.geometry)
         self.version = 0
         self.clock = MapClock(
@@ -215,8 +220,11 @@ class MapService:
 
     def _load_newest_snapshot(self) -> int:
         """Load the newest usable snapshot into the belief; returns its seq (0: none, a
-        full replay). An unusable one is logged and the next older one tried."""
-        seqs = self.journal.snapshot_seqs()
+        full replay). An unusable one is logged and the next older one tried; one older
+        than retention's cut (``deleted_through``) cannot be used. When retention deleted
+        the first scans and no snapshot is usable, raises JournalError (no full replay)."""
+        base = self.journal.deleted_through()
+        seqs = [seq for seq in self.journal.snapshot_seqs() if seq >= base]
         for seq in reversed(seqs):
             try:
                 load_snapshot_into(self.belief, self.journal.load_snapshot(seq))
@@ -225,6 +233,13 @@ class MapService:
                 continue
             self.version = seq
             return seq
+        if base > 0:
+            raise JournalError(
+                f"{self.journal.path}: no usable snapshot at or after seq {base} (kept: "
+                f"{seqs or 'none'}), and retention deleted scans 1-{base}, so the map "
+                "cannot be rebuilt by a full replay: `fleetmap journal check DATA_DIR` says "
+                "what is damaged; start a new data dir (keep this one to inspect)"
+            )
         if seqs:
             logger.error("no usable snapshot (seqs %s): replaying the whole journal", seqs)
         return 0
@@ -469,10 +484,11 @@ class MapService:
         )
         if due and not (self._snapshotter and self._snapshotter.is_alive()):
             taken = self._take_snapshot()
-            self._snapshotter = threading.Thread(
+            saver = threading.Thread(
                 target=self._save_snapshot, args=taken, name="map-snapshot", daemon=True
             )
-            self._snapshotter.start()
+            saver.start()  # before it is published: snapshot() may join it at once
+            self._snapshotter = saver
 
     def snapshot(self) -> int:
         """Save a snapshot of the belief now (waiting for it); returns its seq."""
@@ -494,11 +510,20 @@ class MapService:
             return self.version, self.belief.stamp, arrays
 
     def _save_snapshot(self, seq: int, stamp: float, arrays: dict[str, np.ndarray]) -> None:
+        """Save a snapshot, then apply retention (off the ingest path: this runs on the
+        snapshot thread, and retention deletes in short transactions)."""
+        retention = self.retention.enabled
         try:
-            self.journal.save_snapshot(seq, stamp, seq, arrays)
+            self.journal.save_snapshot(seq, stamp, seq, arrays, prune=not retention)
         except Exception:  # the journal still holds every scan: start-up replays more
             self.snapshot_failures += 1
             logger.exception("snapshot at seq %d failed", seq)
+            return
+        if retention:
+            try:
+                apply_retention(self.journal, self.retention)
+            except Exception:  # nothing acknowledged is lost: the next save retries
+                logger.exception("journal retention after the snapshot at seq %d failed", seq)
 
     # --------------------------------------------------------------------- reads
     @property

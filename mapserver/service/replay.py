@@ -1,6 +1,10 @@
 """Read a server's journal back: the empty belief grid its data dir was made with, and
 its scans in journal order (optionally only those with stamp <= ``until``).
 
+When retention deleted the journal's first scans, the replay starts from the oldest
+kept snapshot that loads (at or after the cut) instead of an empty grid; a journal that
+still starts at its first scan replays from seq 0 as before.
+
 Read-only: a damaged record (its checksum fails, its body does not parse, or
 ``Scan.from_dict`` refuses it) is skipped and reported, as the server would quarantine
 it, but the journal is not changed. Every intact record is replayed, as the server
@@ -22,8 +26,15 @@ from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.service.map_clock import DEFAULT_MAX_LEAD_S
 from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
-from mapserver.store.journal import JOURNAL_FILENAME, JournalError, open_journal_for_replay
+from mapserver.store.journal import (
+    JOURNAL_FILENAME,
+    Journal,
+    JournalError,
+    Snapshot,
+    open_journal_for_replay,
+)
 from mapserver.store.journal_reading import ReadRecord, read_records
+from mapserver.store.snapshot_state import load_snapshot_into, snapshot_problem
 
 
 class ReplayError(FleetmapError, ValueError):
@@ -42,14 +53,58 @@ class Skipped:
 def replay_journal(
     source: Path, until: float | None = None
 ) -> tuple[BeliefGrid, list[Scan], list[Skipped]]:
-    """(empty belief grid with the recorded map settings, the journal's intact scans,
-    the damaged records skipped)."""
+    """(belief grid with the recorded map settings, empty or loaded from the oldest kept
+    snapshot when retention deleted the first scans, the journal's intact scans after
+    it, the damaged records skipped). ReplayError when no snapshot can start the replay
+    or ``until`` [s] is before the oldest kept snapshot's stamp."""
     source = Path(source)
     data_dir = source if source.is_dir() else source.parent
     belief = belief_for(read_settings(data_dir), data_dir / MAP_SETTINGS_FILE)
     journal_file = source if source.is_file() else source / JOURNAL_FILENAME
-    scans, skipped = journal_scans(journal_file, until)
+    after = 0
+    try:
+        with open_journal_for_replay(journal_file) as journal:
+            start = replay_start(journal, belief.geometry.shape)
+    except (JournalError, OSError) as exc:
+        raise ReplayError(f"{journal_file}: {exc}") from None
+    if start is not None:
+        if until is not None and until < start.stamp:
+            raise ReplayError(
+                f"{journal_file}: --until {until} is before the oldest kept snapshot (seq "
+                f"{start.seq}, stamp {start.stamp}): retention deleted the scans before it; "
+                f"use --until >= {start.stamp}"
+            )
+        load_snapshot_into(belief, start)
+        after = start.seq
+    scans, skipped = journal_scans(journal_file, until, after)
     return belief, [scan for _, scan in scans], skipped
+
+
+def replay_start(journal: Journal, shape: tuple[int, int]) -> Snapshot | None:
+    """The snapshot a replay of ``journal`` starts from: None (an empty grid, seq 0) when
+    the journal still holds its first scans, else the oldest kept snapshot at or after
+    retention's cut that loads into a grid of ``shape``; JournalError when none does."""
+    base = journal.deleted_through()
+    if base == 0:
+        return None
+    problems = []
+    for seq in journal.snapshot_seqs():
+        if seq < base:
+            continue
+        try:
+            snapshot = journal.load_snapshot(seq)
+        except JournalError as exc:
+            problems.append(str(exc))
+            continue
+        problem = snapshot_problem(snapshot, shape)
+        if problem is None:
+            return snapshot
+        problems.append(f"snapshot at seq {seq}: {problem}")
+    raise JournalError(
+        f"retention deleted scans 1-{base} and no kept snapshot at or after seq {base} "
+        f"loads ({'; '.join(problems) or 'none kept'}): a replay from seq 0 is only possible "
+        "while nothing was deleted"
+    )
 
 
 def read_settings(data_dir: Path) -> dict[str, Any]:
@@ -80,13 +135,14 @@ def belief_for(recorded: dict[str, Any], source: object = "map settings") -> Bel
 
 
 def journal_scans(
-    journal_file: Path, until: float | None = None
+    journal_file: Path, until: float | None = None, after: int = 0
 ) -> tuple[list[tuple[int, Scan]], list[Skipped]]:
-    """The journal's intact scans as (seq, scan) in seq order, the order the server
-    fuses them (stamps <= ``until`` [s] when given), and the records skipped."""
+    """The journal's intact scans after seq ``after`` as (seq, scan) in seq order, the
+    order the server fuses them (stamps <= ``until`` [s] when given), and the records
+    skipped."""
     scans: list[tuple[int, Scan]] = []
     skipped: list[Skipped] = []
-    for record in journal_records(journal_file, until):
+    for record in journal_records(journal_file, until, after):
         if record.scan is None:
             skipped.append(Skipped(record.seq, record.unit_id, record.problem))
         else:
@@ -94,12 +150,14 @@ def journal_scans(
     return scans, skipped
 
 
-def journal_records(journal_file: Path, until: float | None = None) -> Iterator[ReadRecord]:
-    """The journal's records one by one as the server reads them (``read_records``);
-    ReplayError when the journal itself cannot be read."""
+def journal_records(
+    journal_file: Path, until: float | None = None, after: int = 0
+) -> Iterator[ReadRecord]:
+    """The journal's records after seq ``after`` one by one as the server reads them
+    (``read_records``); ReplayError when the journal itself cannot be read."""
     try:
         with open_journal_for_replay(journal_file) as journal:
             not_after = time.time() + DEFAULT_MAX_LEAD_S  # as the server's start-up does
-            yield from read_records(journal, until=until, not_after=not_after)
+            yield from read_records(journal, after=after, until=until, not_after=not_after)
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None

@@ -75,6 +75,7 @@ from mapserver.service.validation import (
     problems,
 )
 from mapserver.store.mapfiles import MapFileError, RosMap, read_ros_map
+from mapserver.store.retention import RetentionPolicy
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8700
@@ -355,8 +356,20 @@ class JournalSettings(Section):
         or ``OFF`` (they survive a process crash only); ``mapserver.store.journal`` explains.
     snapshot_every_scans, snapshot_every_seconds [s]: snapshot the grid after this many
         scans or this long since the last snapshot, whichever comes first.
-    keep_snapshots: how many snapshots the journal keeps.
+    keep_snapshots: how many of the newest snapshots the journal always keeps.
     history: how many costmap versions' patches are kept for ``/v1/costmap/updates``.
+    retain_seconds: [s] wall time a journaled scan is kept at least (Kafka's
+        ``retention.ms``); older scans that a kept snapshot covers are deleted, in small
+        batches on the snapshot thread. Default 86400 (one day: every shift of a 24/7
+        site can be replayed the next day). null: no age limit.
+    retain_bytes: [bytes] the journal file's used size retention cuts back to (Kafka's
+        ``retention.bytes``), whichever limit comes first. Default 20 GiB: a cap that
+        keeps a large site's journal within an ordinary server disk (100 units x 10 Hz x
+        1,080 beams fill it in about 2 hours, docs/durability.md). null: no size limit.
+        Both null: nothing is deleted, as before retention.
+    quarantine_max_rows: quarantined records kept at most (the newest); those at or
+        before retention's cut go with the scans. Default 10000. null: no cap.
+    ``mapserver.store.retention`` has the rules; docs/durability.md how to size them.
     """
 
     synchronous: Literal["FULL", "NORMAL", "OFF"] = "FULL"
@@ -364,6 +377,15 @@ class JournalSettings(Section):
     snapshot_every_seconds: float = Field(default=60.0, gt=0, allow_inf_nan=False)
     keep_snapshots: int = Field(default=2, gt=0)
     history: int = Field(default=256, gt=0)
+    retain_seconds: float | None = Field(default=86400.0, ge=0, allow_inf_nan=False)
+    retain_bytes: int | None = Field(default=20 << 30, ge=0)
+    quarantine_max_rows: int | None = Field(default=10_000, ge=0)
+
+    def retention(self) -> RetentionPolicy:
+        """These settings as the journal's ``RetentionPolicy``."""
+        return RetentionPolicy(
+            self.retain_seconds, self.retain_bytes, self.keep_snapshots, self.quarantine_max_rows
+        )
 
     @field_validator("synchronous", mode="before")
     @classmethod

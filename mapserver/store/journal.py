@@ -3,14 +3,19 @@
 One SQLite database file (stdlib ``sqlite3``) in WAL mode holds:
 
 - ``scans``: one row per accepted scan, ``seq`` (INTEGER PRIMARY KEY AUTOINCREMENT: 1, 2,
-  3, ... never reused), ``unit_id``, ``stamp`` [s] and ``body``, the scan's docs/http-api.md 2.1
-  object as compact JSON text (Python's ``json``; a no-return range is written
-  ``Infinity``, which the contract accepts as input and ``json.loads`` reads back). The
-  journal is the replay log: replaying it in ``seq`` order rebuilds the map bit for bit.
+  3, ... never reused), ``unit_id``, ``stamp`` [s], ``body``, the scan's docs/http-api.md
+  2.1 object without its ranges as compact JSON text, ``ranges`` (``format`` 1: float32,
+  byte-shuffled, zlib; NULL: raw float64 as schema 3 wrote). The journal is the replay
+  log: replaying it in ``seq`` order rebuilds the map bit for bit. Index
+  ``scans_unit_stamp`` (unit_id, stamp) serves ``find_scan``.
 - ``units``: the largest stamp journaled per unit, so a restarted server still rejects a
   stamp that goes backwards (409) without reading every scan.
 - ``snapshots``: the grid's arrays as of a ``seq`` (``np.savez`` bytes), only the newest
-  ``keep_snapshots`` kept. Start-up = newest usable snapshot + the scans after it.
+  ``keep_snapshots`` kept (or, with retention, what ``mapserver.store.retention``
+  keeps), each with ``saved_at`` (wall time). Start-up = newest usable snapshot + the
+  scans after it.
+- ``meta``: ``deleted_through``, the seq through which retention deleted the scans (a
+  full replay from seq 0 is possible only while it is 0).
 - ``quarantine``: records taken out of ``scans`` (a checksum that fails, a body that does
   not parse, a scan the server refuses, an admin's drop), kept with their original bytes,
   their seq and the reason, never replayed.
@@ -62,7 +67,8 @@ marked as a fleetmap journal with ``PRAGMA application_id``; opening another fil
 another schema version raises ``JournalError`` naming the path and both versions. A
 version-2 journal (no checksums, no quarantine) is migrated in place by a writable open,
 in one transaction (checksums computed for the rows it holds); a read-only open reads it
-as it is, unchecked.
+as it is, unchecked. A version-3 journal (float64 ranges) is migrated in place to 4 the
+same way, its rows kept as they are (``_migrate``); a read-only open reads it as it is.
 """
 
 from __future__ import annotations
@@ -90,11 +96,15 @@ from mapserver.core.text import quote
 
 logger = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 3
-UNCHECKED_VERSION = 2  # the previous schema: no checksums; migrated or read unchecked
+SCHEMA_VERSION = 4
+UNCHECKED_VERSION = 2  # no checksums: migrated by a writable open, else read unchecked
+FLOAT64_VERSION = 3  # float64 ranges, no index: migrated by a writable open, else read as is
+FORMAT_F32_ZLIB = 1  # scans.format: ranges as byte-shuffled float32, zlib (NULL: raw float64)
+RANGES_ZLIB_LEVEL = 6  # zlib level of the ranges (1 is 2 % larger, 9 no smaller)
 APPLICATION_ID = 0x464D4A31  # "FMJ1": marks the file as a fleetmap journal
 JOURNAL_FILENAME = "journal.sqlite3"  # the journal's name inside a server data directory
 SYNCHRONOUS_MODES = ("FULL", "NORMAL", "OFF")
+WAL_SIZE_LIMIT = 64 << 20  # [bytes] the -wal file kept after a checkpoint (journal_size_limit)
 Synchronous = Literal["FULL", "NORMAL", "OFF"]
 
 _SCHEMA = """
@@ -131,6 +141,20 @@ CREATE TABLE quarantine (
     quarantined_at REAL NOT NULL
 );
 """
+# Version 4 over version 3: the rows' ranges encoding (NULL: a schema-3 row, raw float64,
+# fused unrounded), the wall time a snapshot was saved (retention's clock), what retention
+# deleted, and the index of the same-stamp lookup (``find_scan``).
+_SCHEMA_V4 = """
+ALTER TABLE scans ADD COLUMN format INTEGER;
+ALTER TABLE quarantine ADD COLUMN format INTEGER;
+ALTER TABLE snapshots ADD COLUMN saved_at REAL;
+CREATE TABLE meta (
+    key TEXT PRIMARY KEY,
+    value INTEGER NOT NULL
+) WITHOUT ROWID;
+CREATE INDEX scans_unit_stamp ON scans (unit_id, stamp);
+"""
+DELETED_THROUGH = "deleted_through"  # meta key: every scan with seq <= this was deleted
 _FILL_CHECKSUMS = (
     "UPDATE scans SET checksum = fleetmap_record_checksum("
     "CAST(unit_id AS BLOB), stamp, CAST(body AS BLOB), ranges)",
@@ -138,14 +162,21 @@ _FILL_CHECKSUMS = (
 )
 # A scan row as bytes: a damaged TEXT value must not fail to decode while it is read.
 _RAW_COLUMNS = "seq, CAST(unit_id AS BLOB), stamp, CAST(body AS BLOB), ranges"
-_INSERT_SCAN = "INSERT INTO scans (unit_id, stamp, body, ranges, checksum) VALUES (?, ?, ?, ?, ?)"
+_INSERT_SCAN = (
+    "INSERT INTO scans (unit_id, stamp, body, ranges, checksum, format) VALUES (?, ?, ?, ?, ?, ?)"
+)
 _IMPORT_SCAN = (
-    "INSERT INTO scans (seq, unit_id, stamp, body, ranges, checksum) VALUES (?, ?, ?, ?, ?, ?)"
+    "INSERT INTO scans (seq, unit_id, stamp, body, ranges, checksum, format) "
+    "VALUES (?, ?, ?, ?, ?, ?, ?)"
 )
 _IMPORT_QUARANTINED = (
     "INSERT OR REPLACE INTO quarantine "
-    "(seq, unit_id, stamp, body, ranges, checksum, reason, quarantined_at) "
-    "VALUES (?, ?, ?, ?, ?, ?, ?, ?)"
+    "(seq, unit_id, stamp, body, ranges, checksum, format, reason, quarantined_at) "
+    "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"
+)
+_SET_DELETED_THROUGH = (
+    f"INSERT INTO meta (key, value) VALUES ('{DELETED_THROUGH}', ?) "
+    "ON CONFLICT (key) DO UPDATE SET value = max(value, excluded.value)"
 )
 _UPSERT_UNIT = (
     "INSERT INTO units (unit_id, stamp) VALUES (?, ?) "
@@ -168,7 +199,8 @@ class SnapshotError(JournalError):
 @dataclass(frozen=True)
 class RawRow:
     """A scan row as stored: ``unit_id`` and ``body`` as their bytes, ``stamp`` [s],
-    ``ranges`` (float64 bytes) and ``checksum`` (None: not recorded, read unchecked)."""
+    ``ranges`` (bytes in ``format``), ``checksum`` (None: not recorded, read unchecked)
+    and ``format`` (None: raw float64, as schemas 2 and 3 wrote; ``FORMAT_F32_ZLIB``)."""
 
     seq: int
     unit_id: bytes
@@ -176,9 +208,10 @@ class RawRow:
     body: bytes
     ranges: bytes
     checksum: int | None
+    format: int | None = None
 
     def computed_checksum(self) -> int:
-        return record_checksum(self.unit_id, self.stamp, self.body, self.ranges)
+        return record_checksum(self.unit_id, self.stamp, self.body, self.ranges, self.format)
 
 
 @dataclass(frozen=True)
@@ -193,6 +226,7 @@ class Record:
     scan: dict[str, Any] | None
     problem: str | None
     checksum_ok: bool | None
+    float64_ranges: bool = False  # stored as float64 (schema <= 3): fused unrounded
 
     def body(self) -> dict[str, Any]:
         """The scan object; raises RecordError (the problem) for a damaged record."""
@@ -215,6 +249,16 @@ class Snapshot:
     stamp: float
     version: int
     arrays: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class SnapshotInfo:
+    """A stored snapshot without its arrays: ``seq``, ``saved_at`` [s since the epoch,
+    wall time] and ``nbytes`` (its arrays' stored size)."""
+
+    seq: int
+    saved_at: float
+    nbytes: int
 
 
 class Journal:
@@ -253,6 +297,8 @@ class Journal:
         self.schema_version = SCHEMA_VERSION  # what the file holds (2: read unchecked)
         self._conn = self._connect(busy_timeout)
         self._checksum_column = "checksum" if self.schema_version >= 3 else "NULL"
+        self._format_column = "format" if self.schema_version >= 4 else "NULL"
+        self._row_columns = f"{_RAW_COLUMNS}, {self._checksum_column}, {self._format_column}"
         self.quarantined = self._count_quarantined()  # rows in quarantine, kept current
 
     # ------------------------------------------------------------------ opening
@@ -300,10 +346,10 @@ class Journal:
                 f"{self.path}: not a fleetmap journal "
                 f"(application_id {app_id:#x}, expected {APPLICATION_ID:#x})"
             )
-        elif version == UNCHECKED_VERSION and self.readonly:
-            self.schema_version = UNCHECKED_VERSION
-        elif version == UNCHECKED_VERSION:
-            self._migrate(conn)
+        elif version in (UNCHECKED_VERSION, FLOAT64_VERSION) and self.readonly:
+            self.schema_version = version
+        elif version in (UNCHECKED_VERSION, FLOAT64_VERSION):
+            self._migrate(conn, version)
         elif version != SCHEMA_VERSION:
             raise JournalError(
                 f"{self.path}: journal schema version {version}, but this fleetmap reads "
@@ -317,21 +363,37 @@ class Journal:
         if str(mode).lower() != "wal":
             raise JournalError(f"{self.path}: cannot switch to WAL mode, got journal_mode {mode}")
         conn.execute(f"PRAGMA synchronous = {self.synchronous}")
+        # After a checkpoint the -wal file is truncated to this size instead of staying at
+        # its high-water mark (a snapshot's blob passes through it): SQLite, "PRAGMA
+        # journal_size_limit". Checkpoints themselves run every wal_autocheckpoint pages
+        # (SQLite's default, 1000).
+        conn.execute(f"PRAGMA journal_size_limit = {WAL_SIZE_LIMIT}")
 
     @staticmethod
     def _create_schema(conn: sqlite3.Connection) -> None:
-        statements = [*_statements(_SCHEMA), *_statements(_SCHEMA_V3)]
+        statements = [*_statements(_SCHEMA), *_statements(_SCHEMA_V3), *_statements(_SCHEMA_V4)]
         statements.append(f"PRAGMA application_id = {APPLICATION_ID}")
         _in_transaction(conn, [*statements, f"PRAGMA user_version = {SCHEMA_VERSION}"])
 
-    def _migrate(self, conn: sqlite3.Connection) -> None:
-        """Version 2 -> 3 in one transaction: the new columns and table, checksums for the
-        rows there are (a row damaged before now is not detectable by its checksum)."""
-        statements = [*_statements(_SCHEMA_V3), *_FILL_CHECKSUMS]
+    def _migrate(self, conn: sqlite3.Connection, version: int) -> None:
+        """Version 2 or 3 -> 4 in one transaction. From 2: the checksum columns and the
+        quarantine table, checksums for the rows there are (a row damaged before now is
+        not detectable by its checksum). From 3: the ``format`` column (the rows there keep
+        their float64 ranges and NULL format, so they replay to the map they made), the
+        snapshots' ``saved_at`` (now: they age from the upgrade), ``meta`` and the index."""
+        statements: list[str] = []
+        if version == UNCHECKED_VERSION:
+            statements += [*_statements(_SCHEMA_V3), *_FILL_CHECKSUMS]
+        statements += _statements(_SCHEMA_V4)
+        statements.append(f"UPDATE snapshots SET saved_at = {time.time()!r}")
         _in_transaction(conn, [*statements, f"PRAGMA user_version = {SCHEMA_VERSION}"])
         rows = conn.execute("SELECT count(*) FROM scans").fetchone()[0]
         logger.info(
-            "%s: journal migrated from schema 2 to 3 (%d scans checksummed)", self.path, rows
+            "%s: journal migrated from schema %d to %d (%d scans kept as they were stored)",
+            self.path,
+            version,
+            SCHEMA_VERSION,
+            rows,
         )
 
     def _count_quarantined(self) -> int:
@@ -387,8 +449,9 @@ class Journal:
 
         scans: docs/http-api.md 2.1 scan objects already accepted by ``Scan.from_dict`` (the
             journal reads ``unit_id`` and ``stamp`` [s]; it stores the other fields as JSON
-            and ``ranges`` as float64 bytes, null as NaN: encoding 1080 floats as text
-            cost more than fusing them).
+            and ``ranges`` as float32, null as NaN, byte-shuffled and zlib-compressed
+            (``encode_ranges``): ``Scan.from_dict`` rounded them to float32 already, so
+            what is stored is exactly what was fused).
         Returns the new seqs, consecutive and increasing, one per scan. All scans are
         written or none: on any error nothing is journaled. What survives a crash once
         this returns is in the module docstring.
@@ -397,10 +460,11 @@ class Journal:
         for i, scan in enumerate(scans):
             unit_id, stamp = _unit_and_stamp(scan, i)
             header = {k: v for k, v in scan.items() if k != "ranges"}
-            ranges = np.asarray(scan.get("ranges", ()), dtype="<f8").tobytes()
+            ranges = encode_ranges(scan.get("ranges", ()))
             body = json.dumps(header, separators=(",", ":"))
-            checksum = record_checksum(unit_id.encode(), stamp, body.encode(), ranges)
-            statements.append((_INSERT_SCAN, (unit_id, stamp, body, ranges, checksum)))
+            fmt = FORMAT_F32_ZLIB
+            checksum = record_checksum(unit_id.encode(), stamp, body.encode(), ranges, fmt)
+            statements.append((_INSERT_SCAN, (unit_id, stamp, body, ranges, checksum, fmt)))
             statements.append((_UPSERT_UNIT, (unit_id, stamp)))
         if not statements:
             return []
@@ -423,10 +487,7 @@ class Journal:
         where, params = "seq > ?", []
         if until_stamp is not None:
             where, params = "seq > ? AND stamp <= ?", [float(until_stamp)]
-        sql = (
-            f"SELECT {_RAW_COLUMNS}, {self._checksum_column} FROM scans "
-            f"WHERE {where} ORDER BY seq LIMIT ?"
-        )
+        sql = f"SELECT {self._row_columns} FROM scans WHERE {where} ORDER BY seq LIMIT ?"
         last = int(seq)
         while True:
             rows = self._read(sql, [last, *params, page_size])
@@ -451,9 +512,10 @@ class Journal:
 
     def find_scan(self, unit_id: str, stamp: float) -> tuple[int, dict[str, Any]] | None:
         """The newest intact journaled ``(seq, scan)`` of ``unit_id`` at ``stamp`` [s], or
-        None (a full table scan: for the rare retry the server has not seen itself)."""
+        None (the index ``scans_unit_stamp``: O(log scans); a schema-3 file opened
+        read-only has none and scans the table)."""
         rows = self._read(
-            f"SELECT {_RAW_COLUMNS}, {self._checksum_column} FROM scans "
+            f"SELECT {self._row_columns} FROM scans "
             "WHERE unit_id = ? AND stamp = ? ORDER BY seq DESC LIMIT 1",
             (unit_id, float(stamp)),
         )
@@ -481,8 +543,12 @@ class Journal:
     def drop_unit_after(self, unit_id: str, after: float, reason: str) -> list[tuple[int, float]]:
         """Quarantine every scan of ``unit_id`` with stamp > ``after`` [s], set the unit's
         stamp bound to its largest remaining stamp (no row when none remains) and delete
-        every snapshot (they include the dropped scans), in one transaction. Returns the
-        dropped ``(seq, stamp)``, by seq; nothing changes when there are none."""
+        the snapshots that include a dropped scan (seq >= the first dropped seq), in one
+        transaction; the older snapshots stay, so start-up rebuilds from the newest of
+        them. Returns the dropped ``(seq, stamp)``, by seq; nothing changes when there are
+        none. Raises JournalError, changing nothing, when retention deleted the journal's
+        first scans and no usable snapshot older than the first dropped scan remains (the
+        map could not be rebuilt)."""
         dropped = [
             (int(seq), float(stamp))
             for seq, stamp in self._read(
@@ -492,8 +558,19 @@ class Journal:
         ]
         if not dropped:
             return []
+        first = dropped[0][0]
+        base = self.deleted_through()
+        if base > 0 and self.usable_snapshot(before=first) is None:
+            raise JournalError(
+                f"{self.path}: cannot drop unit {unit_id!r}'s scans from seq {first} (stamp "
+                f"{dropped[0][1]}): retention deleted scans 1-{base}, so the map can only be "
+                f"rebuilt from a snapshot, and no usable snapshot older than seq {first} "
+                f"remains (kept: {self.snapshot_seqs() or 'none'}). Drop with a later --after "
+                "(after the oldest kept snapshot), or start a new data dir"
+            )
         statements = [st for seq, _ in dropped for st in _quarantine_statements(seq, reason)]
-        statements += [*_reset_unit_statements(unit_id), ("DELETE FROM snapshots", ())]
+        statements += _reset_unit_statements(unit_id)
+        statements.append(("DELETE FROM snapshots WHERE seq >= ?", (first,)))
         self._write(statements)
         self.quarantined += len(dropped)
         return dropped
@@ -513,11 +590,19 @@ class Journal:
             reason = reasons.get(row.seq)
             if reason is not None:
                 values = (row.seq, row.unit_id, row.stamp, row.body, row.ranges, row.checksum)
-                statements.append((_IMPORT_QUARANTINED, (*values, reason, now)))
+                statements.append((_IMPORT_QUARANTINED, (*values, row.format, reason, now)))
                 continue
             unit_id = row.unit_id.decode()
             checksum = row.computed_checksum() if row.checksum is None else row.checksum
-            values = (row.seq, unit_id, row.stamp, row.body.decode(), row.ranges, checksum)
+            values = (
+                row.seq,
+                unit_id,
+                row.stamp,
+                row.body.decode(),
+                row.ranges,
+                checksum,
+                row.format,
+            )
             statements.append((_IMPORT_SCAN, values))
             statements.append((_UPSERT_UNIT, (unit_id, row.stamp)))
         if statements:
@@ -535,6 +620,87 @@ class Journal:
     def count(self) -> int:
         """Number of journaled scans (a full count: O(scans); prefer ``last_seq`` on hot paths)."""
         return int(self._read("SELECT count(*) FROM scans")[0][0])
+
+    def deleted_through(self) -> int:
+        """Every scan with seq <= this was deleted by retention (0: none was; the whole
+        journal replays from an empty map). Snapshots older than it cannot be used."""
+        if self.schema_version < 4:
+            return 0
+        rows = self._read("SELECT value FROM meta WHERE key = ?", (DELETED_THROUGH,))
+        return int(rows[0][0]) if rows else 0
+
+    def set_deleted_through(self, seq: int) -> None:
+        """Record that the scans up to ``seq`` are gone (never lowers it; salvage)."""
+        self._write([(_SET_DELETED_THROUGH, (int(seq),))])
+
+    def delete_scans_through(self, seq: int, batch: int = 1000) -> int:
+        """Delete the scans with seq <= ``seq`` (retention), ``batch`` seqs per
+        transaction, each also raising ``deleted_through``, so appends wait for one
+        short transaction at most and a crash between two leaves a consistent journal.
+        Returns the rows deleted."""
+        if batch < 1:
+            raise ValueError(f"batch must be >= 1, got {batch!r}")
+        start = self.deleted_through()
+        if seq <= start:
+            return 0
+        first = self._read("SELECT min(seq) FROM scans WHERE seq > ?", (start,))[0][0]
+        low = int(seq) if first is None else max(start, min(int(first) - 1, int(seq)))
+        if low > start:  # no scan between: only the mark moves
+            self.set_deleted_through(low)
+        deleted = 0
+        while low < seq:
+            high = min(int(seq), low + batch)
+            cursors = self._write(
+                [
+                    ("DELETE FROM scans WHERE seq > ? AND seq <= ?", (low, high)),
+                    (_SET_DELETED_THROUGH, (high,)),
+                ]
+            )
+            deleted += max(0, cursors[0].rowcount)
+            low = high
+        return deleted
+
+    def prune_quarantine(self, through_seq: int, max_rows: int | None) -> int:
+        """Delete the quarantined rows with seq <= ``through_seq`` (retention deleted
+        their neighbours) and, beyond ``max_rows`` (None: no cap), the oldest; returns
+        how many."""
+        statements: list[tuple[str, Sequence[Any]]] = [
+            ("DELETE FROM quarantine WHERE seq <= ?", (int(through_seq),))
+        ]
+        if max_rows is not None:
+            statements.append(
+                (
+                    "DELETE FROM quarantine WHERE seq NOT IN "
+                    "(SELECT seq FROM quarantine ORDER BY seq DESC LIMIT ?)",
+                    (int(max_rows),),
+                )
+            )
+        deleted = sum(max(0, c.rowcount) for c in self._write(statements))
+        self.quarantined = self._count_quarantined()
+        return deleted
+
+    def prune_units(self) -> int:
+        """Delete the stamp bound of every unit with no scan left in the journal (its
+        scans all past retention); returns how many. O(units x log scans), by the index."""
+        cursor = self._write(
+            [
+                (
+                    "DELETE FROM units WHERE NOT EXISTS "
+                    "(SELECT 1 FROM scans WHERE scans.unit_id = units.unit_id)",
+                    (),
+                )
+            ]
+        )[0]
+        return max(0, cursor.rowcount)
+
+    def page_stats(self) -> tuple[int, int, int]:
+        """``(page_count, freelist_count, page_size [bytes])`` of the database file: its
+        used bytes are ``(page_count - freelist_count) * page_size``."""
+        return (
+            int(self._read("PRAGMA page_count")[0][0]),
+            int(self._read("PRAGMA freelist_count")[0][0]),
+            int(self._read("PRAGMA page_size")[0][0]),
+        )
 
     def unit_stamps(self) -> dict[str, float]:
         """The largest journaled stamp [s] of every unit, the bound for its next scan."""
@@ -554,9 +720,17 @@ class Journal:
 
     # ------------------------------------------------------------------ snapshots
     def save_snapshot(
-        self, seq: int, stamp: float, version: int, arrays: Mapping[str, np.ndarray]
+        self,
+        seq: int,
+        stamp: float,
+        version: int,
+        arrays: Mapping[str, np.ndarray],
+        *,
+        prune: bool = True,
     ) -> None:
-        """Store the grid's arrays as of journal ``seq``; keep only the newest snapshots.
+        """Store the grid's arrays as of journal ``seq``, with the wall time now as
+        ``saved_at``; with ``prune``, keep only the newest ``keep_snapshots`` (without:
+        retention, ``mapserver.store.retention``, chooses which to keep).
 
         seq: the last journaled scan the arrays include (0 <= seq <= last_seq()).
         stamp: [s] the map's "now" then. version: the map version then.
@@ -573,20 +747,64 @@ class Journal:
         newest = self.last_seq()
         if seq > newest:
             raise ValueError(f"seq must not be beyond the journal's last seq ({newest}), got {seq}")
-        self._write(
-            [
-                (
-                    "INSERT OR REPLACE INTO snapshots (seq, stamp, version, arrays, checksum) "
-                    "VALUES (?, ?, ?, ?, ?)",
-                    (int(seq), float(stamp), int(version), blob, checksum),
-                ),
+        statements: list[tuple[str, Sequence[Any]]] = [
+            (
+                "INSERT OR REPLACE INTO snapshots "
+                "(seq, stamp, version, arrays, checksum, saved_at) VALUES (?, ?, ?, ?, ?, ?)",
+                (int(seq), float(stamp), int(version), blob, checksum, time.time()),
+            )
+        ]
+        if prune:
+            statements.append(
                 (
                     "DELETE FROM snapshots WHERE seq NOT IN "
                     "(SELECT seq FROM snapshots ORDER BY seq DESC LIMIT ?)",
                     (self.keep_snapshots,),
-                ),
+                )
+            )
+        self._write(statements)
+
+    def import_snapshot(self, snapshot: Snapshot, saved_at: float) -> None:
+        """Store another journal's snapshot as it was (salvage), checksummed anew."""
+        blob = encode_arrays(snapshot.arrays)
+        checksum = snapshot_checksum(snapshot.seq, snapshot.stamp, snapshot.version, blob)
+        self._write(
+            [
+                (
+                    "INSERT OR REPLACE INTO snapshots "
+                    "(seq, stamp, version, arrays, checksum, saved_at) VALUES (?, ?, ?, ?, ?, ?)",
+                    (snapshot.seq, snapshot.stamp, snapshot.version, blob, checksum, saved_at),
+                )
             ]
         )
+
+    def delete_snapshots(self, seqs: Sequence[int]) -> None:
+        """Delete the snapshots at ``seqs`` (one transaction)."""
+        if seqs:
+            self._write([("DELETE FROM snapshots WHERE seq = ?", (int(s),)) for s in seqs])
+
+    def snapshot_infos(self) -> list[SnapshotInfo]:
+        """Every stored snapshot's seq, wall time saved and size, oldest first (a schema
+        older than 4 records no ``saved_at``: 0). Reads no arrays."""
+        saved_at = "saved_at" if self.schema_version >= 4 else "0"
+        rows = self._read(
+            f"SELECT seq, coalesce({saved_at}, 0), length(arrays) FROM snapshots ORDER BY seq"
+        )
+        return [SnapshotInfo(int(seq), float(at), int(size)) for seq, at, size in rows]
+
+    def usable_snapshot(self, before: int | None = None) -> Snapshot | None:
+        """The newest snapshot that loads (checksum, arrays), among those a replay can start
+        from (seq >= ``deleted_through``) and, when given, with seq < ``before``; None when
+        there is none. Unusable ones are logged and skipped."""
+        base = self.deleted_through()
+        for seq in reversed(self.snapshot_seqs()):
+            if seq < base or (before is not None and seq >= before):
+                continue
+            try:
+                return self.load_snapshot(seq)
+            except SnapshotError as exc:
+                logger.error("%s", exc)
+        return None
 
     def latest_snapshot(self) -> Snapshot | None:
         """The snapshot with the largest seq, or None when there is none; raises
@@ -642,10 +860,15 @@ def decode_arrays(blob: bytes) -> dict[str, np.ndarray]:
         return {name: archive[name] for name in archive.files}
 
 
-def record_checksum(unit_id: bytes, stamp: float, body: bytes, ranges: bytes) -> int:
-    """CRC-32 of a scan row: its field lengths and stamp [s] (float64), then the
+def record_checksum(
+    unit_id: bytes, stamp: float, body: bytes, ranges: bytes, fmt: int | None = None
+) -> int:
+    """CRC-32 of a scan row: its field lengths and stamp [s] (float64), its ranges
+    ``fmt`` when it has one (a schema-3 row, NULL, keeps its old checksum), then the
     ``unit_id``, ``body`` (JSON text) and ``ranges`` bytes as stored."""
     header = struct.pack("<dQQQ", float(stamp), len(unit_id), len(body), len(ranges))
+    if fmt is not None:
+        header += struct.pack("<q", int(fmt))
     return zlib.crc32(ranges, zlib.crc32(body, zlib.crc32(unit_id, zlib.crc32(header))))
 
 
@@ -669,21 +892,58 @@ def decode_row(row: RawRow) -> Record:
         scan = json.loads(row.body.decode("utf-8"))
         if not isinstance(scan, dict):
             raise ValueError(f"the body is a JSON {type(scan).__name__}, not an object")
-        if len(row.ranges) % 8:
-            raise ValueError(f"ranges hold {len(row.ranges)} bytes, not whole float64s")
-    except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        ranges = decode_ranges(row.ranges, row.format)
+    except (ValueError, zlib.error) as exc:  # UnicodeDecodeError, JSONDecodeError: ValueErrors
         return Record(row.seq, unit_id, row.stamp, None, f"body does not parse: {exc}", ok)
-    values = np.frombuffer(row.ranges, dtype="<f8").tolist()
-    scan["ranges"] = [None if math.isnan(r) else r for r in values]
-    return Record(row.seq, unit_id, row.stamp, scan, None, ok)
+    scan["ranges"] = [None if math.isnan(r) else r for r in ranges.tolist()]
+    return Record(row.seq, unit_id, row.stamp, scan, None, ok, row.format is None)
+
+
+def encode_ranges(ranges: Any) -> bytes:
+    """Ranges [m] as stored (``FORMAT_F32_ZLIB``): float32 little-endian, null as NaN,
+    byte-shuffled (all first bytes, then all second bytes, ...: the sign and exponent
+    bytes of nearby ranges repeat, so zlib finds them) and zlib-compressed. Values must
+    be float32 already (``Scan.from_dict`` rounds them); a value that is not is refused,
+    since the map would not replay to what was fused."""
+    values = np.asarray(
+        [np.nan if r is None else r for r in ranges] if isinstance(ranges, list) else ranges,
+        dtype=np.float64,
+    )
+    with np.errstate(over="ignore"):
+        single = values.astype("<f4")
+    exact = (single.astype(np.float64) == values) | np.isnan(values)
+    if not exact.all():
+        i = int(np.argmin(exact))
+        raise ValueError(
+            f"ranges[{i}] = {values[i]!r} is not a float32 value: validate scans with "
+            "Scan.from_dict, which rounds ranges to float32 (what the journal stores)"
+        )
+    shuffled = single.view(np.uint8).reshape(-1, 4).T.tobytes()
+    return zlib.compress(shuffled, RANGES_ZLIB_LEVEL)
+
+
+def decode_ranges(blob: bytes, fmt: int | None) -> np.ndarray:
+    """The ranges [m] of a stored row (float32 or, for ``fmt`` None, float64 values);
+    ValueError (or zlib.error) when the bytes are not of that format."""
+    if fmt is None:
+        if len(blob) % 8:
+            raise ValueError(f"ranges hold {len(blob)} bytes, not whole float64s")
+        return np.frombuffer(blob, dtype="<f8")
+    if fmt != FORMAT_F32_ZLIB:
+        raise ValueError(f"unknown ranges format {fmt!r} (this fleetmap reads NULL and 1)")
+    shuffled = zlib.decompress(blob)
+    if len(shuffled) % 4:
+        raise ValueError(f"ranges hold {len(shuffled)} bytes, not whole float32s")
+    planes = np.frombuffer(shuffled, dtype=np.uint8).reshape(4, -1)
+    return planes.T.copy().view("<f4").reshape(-1)
 
 
 def _quarantine_statements(seq: int, reason: str) -> list[tuple[str, Sequence[Any]]]:
     """Copy scan ``seq`` to quarantine with ``reason``, then delete it from scans."""
     copy = (
         "INSERT OR REPLACE INTO quarantine "
-        "(seq, unit_id, stamp, body, ranges, checksum, reason, quarantined_at) "
-        f"SELECT {_RAW_COLUMNS}, checksum, ?, ? FROM scans WHERE seq = ?"
+        "(seq, unit_id, stamp, body, ranges, checksum, format, reason, quarantined_at) "
+        f"SELECT {_RAW_COLUMNS}, checksum, format, ?, ? FROM scans WHERE seq = ?"
     )
     return [
         (copy, (str(reason), time.time(), int(seq))),

@@ -91,6 +91,7 @@ class RowReader:
             self._conn.close()
             raise sqlite3.DatabaseError(f"{path}: no scans table")
         self._checksum = "checksum" if "checksum" in columns else "NULL"
+        self._format = "format" if "format" in columns else "NULL"
 
     def close(self) -> None:
         self._conn.close()
@@ -120,13 +121,30 @@ class RowReader:
         ]
         return max(found) if found else None
 
+    def first_seq(self) -> int:
+        """Where the rows start: 1, or past the seqs retention deleted (the ``meta``
+        table's mark, else the smallest seq that reads) so a cut journal is not probed
+        from seq 1."""
+        mark = self.deleted_through()
+        if mark:
+            return mark + 1
+        first = self._try("SELECT min(seq) FROM scans")
+        return int(first[0][0]) if first and first[0][0] is not None else 1
+
+    def deleted_through(self) -> int:
+        """The seq through which retention deleted the scans (0: none, or unknown)."""
+        mark = self._try("SELECT value FROM meta WHERE key = 'deleted_through'")
+        return int(mark[0][0]) if mark else 0
+
     def rows(self) -> Iterator[RawRow | Unreadable]:
-        """Every scan row that reads, by seq, and an ``Unreadable`` for each seq up to
-        the end the file claims whose lookup fails (a gap of deleted seqs is silent)."""
+        """Every scan row that reads, by seq, and an ``Unreadable`` for each seq from
+        ``first_seq`` up to the end the file claims whose lookup fails (a gap of deleted
+        seqs is silent)."""
         columns = "seq, CAST(unit_id AS BLOB), stamp, CAST(body AS BLOB), ranges"
-        select = f"SELECT {columns}, {self._checksum} FROM scans WHERE seq "
+        select = f"SELECT {columns}, {self._checksum}, {self._format} FROM scans WHERE seq "
         end = self.last_seq_claimed()
-        start, last_found = 1, 0
+        start = self.first_seq()
+        last_found = start - 1
         while start <= (end if end is not None else last_found + PROBE_LIMIT):
             stop = start + CHUNK - 1
             chunk = self._try(select + "BETWEEN ? AND ? ORDER BY seq", (start, stop))
@@ -150,9 +168,9 @@ class RowReader:
 
     def quarantined(self) -> list[tuple[RawRow, str]]:
         """The quarantined rows with their reasons, or [] when the table does not read."""
-        columns = "seq, unit_id, stamp, body, ranges, checksum, reason"
+        columns = f"seq, unit_id, stamp, body, ranges, checksum, {self._format}, reason"
         rows = self._try(f"SELECT {columns} FROM quarantine ORDER BY seq") or []
-        return [(RawRow(*row[:6]), row[6]) for row in rows]
+        return [(RawRow(*row[:7]), row[7]) for row in rows]
 
 
 def seq_ranges(seqs: list[int]) -> list[tuple[int, int]]:

@@ -22,6 +22,9 @@ from mapserver.store.journal import (
     open_journal_for_replay,
 )
 
+F32_A = float(np.float32(1.2345678901234567))  # ranges are float32 values (Scan.from_dict)
+F32_B = float(np.float32(0.1 + 0.2))
+
 
 def scan(unit_id: str = "u1", stamp: float = 0.0, n: int = 4) -> dict:
     """A docs/http-api.md 2.1 scan object with a return, a no-return and an invalid beam."""
@@ -35,7 +38,7 @@ def scan(unit_id: str = "u1", stamp: float = 0.0, n: int = 4) -> dict:
         "angle_increment": 0.01745,
         "range_min": 0.05,
         "range_max": 20.0,
-        "ranges": [1.2345678901234567, math.inf, None, 0.1 + 0.2][:n],
+        "ranges": [F32_A, math.inf, None, F32_B][:n],
     }
 
 
@@ -52,13 +55,21 @@ def test_appended_scans_read_back_equal(journal: Journal) -> None:
     assert [body for _, body in journal.scans_after(0)] == scans
 
 
-def test_floats_and_no_return_ranges_round_trip_exactly(journal: Journal) -> None:
+def test_float32_and_no_return_ranges_round_trip_exactly(journal: Journal) -> None:
     journal.append([scan()])
     (_, body) = next(journal.scans_after(0))
-    assert body["ranges"][0] == 1.2345678901234567
+    assert body["ranges"][0] == F32_A
     assert body["ranges"][1] == math.inf
     assert body["ranges"][2] is None
-    assert body["ranges"][3] == 0.1 + 0.2
+    assert body["ranges"][3] == F32_B
+
+
+def test_a_range_that_is_not_float32_is_refused_not_rounded(journal: Journal) -> None:
+    body = scan()
+    body["ranges"] = [F32_A, 1.2345678901234567]
+    with pytest.raises(ValueError, match=r"ranges\[1\] = .* is not a float32 value"):
+        journal.append([body])
+    assert journal.last_seq() == 0
 
 
 def test_seqs_are_consecutive_and_increase_across_batches(journal: Journal) -> None:
@@ -253,7 +264,7 @@ _WRITER = textwrap.dedent(
     from mapserver.store.journal import Journal
 
     journal = Journal(sys.argv[1], synchronous=sys.argv[2])
-    ranges = [1.0 + 0.001 * i for i in range(360)]
+    ranges = [1.0 + 0.125 * i for i in range(360)]  # float32 values
     for batch in range(100000):
         scans = [
             {"unit_id": f"u{k}", "stamp": float(batch), "frame": "map",
