@@ -29,6 +29,7 @@ from typing import Any
 from fastapi import Request
 
 from mapserver.api.admission import too_many
+from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import Scan
 from mapserver.service.settings import IngestSettings
 
@@ -58,7 +59,7 @@ class Budget:
         return any(rate is not None for rate in self.rates())
 
 
-class Throttled(Exception):
+class Throttled(FleetmapError, Exception):
     """A request past a budget: ``retry_after_s`` [whole s] and a message naming the unit
     or token, its rate and the setting."""
 
