@@ -101,7 +101,8 @@ class ClockLead:
         kind = self.reference.kind
         return (
             f"{self.stamp!r} is {self.offset_s:.6g} s ahead of "
-            f"{REFERENCE_NAMES[kind]} ({self.reference.value:.17g} s{self.reference.note}), "
+            f"{REFERENCE_NAMES[kind]} ({round(self.reference.value, 3)!r} s"
+            f"{self.reference.note}), "
             "more than "
             f"clock.max_lead_s = {self.max_lead_s:g} s: this unit's clock runs "
             f"{self.offset_s:.6g} s ahead; {FIXES[kind]}"
