@@ -61,7 +61,7 @@ def test_the_map_simulated_time_bounds_a_jump_but_not_a_laggard_or_a_late_joiner
         c.observe(float(k))  # a simulated fleet at 0..10 s
     lead = c.check(310.0)
     assert lead.reference.kind == SIMULATED and lead.reference.value == 10.0
-    assert "300 s ahead of the map's simulated time (10 s: 10.0 s when" in lead.describe()
+    assert "300 s ahead of the map's simulated time (10.0 s: 10.0 s when" in lead.describe()
     assert c.check(15.0) is None and c.check(0.0) is None  # within the lead; a laggard
     wall.now += 5.0  # all silent 5 wall seconds: simulated time may have run 50 s on
     assert c.check(65.0) is None and c.check(65.1).reference.value == 60.0
@@ -89,7 +89,7 @@ def test_a_declared_clock_binds_every_stamp_until_it_lapses():
     assert c.reference().kind == DECLARED and c.declared() == (50.0, 0.0)
     assert c.check(55.0) is None
     lead = c.check(100.0)
-    assert lead.reference.kind == DECLARED and "declared simulation clock (50 s)" in lead.describe()
+    assert lead.reference.kind == DECLARED and "declared simulation clock (50.0 s)" in lead.describe()
     wall.now += 10.5
     assert c.declared() is None and c.check(100.0) is None
 
