@@ -89,7 +89,8 @@ def test_a_declared_clock_binds_every_stamp_until_it_lapses():
     assert c.reference().kind == DECLARED and c.declared() == (50.0, 0.0)
     assert c.check(55.0) is None
     lead = c.check(100.0)
-    assert lead.reference.kind == DECLARED and "declared simulation clock (50.0 s)" in lead.describe()
+    assert lead.reference.kind == DECLARED
+    assert "declared simulation clock (50.0 s)" in lead.describe()
     wall.now += 10.5
     assert c.declared() is None and c.check(100.0) is None
 
