@@ -7,11 +7,9 @@ from __future__ import annotations
 import math
 
 from fastapi import APIRouter, Depends, HTTPException, Request
-from fastapi.exceptions import RequestValidationError
-from pydantic import ValidationError
 
 from mapserver.api.auth import DECLARE_CLOCK, READ, require
-from mapserver.api.body import body_schema, read_json
+from mapserver.api.body import body_schema, read_model
 from mapserver.api.schemas import ClockIn, ClockOut, DeclaredClock, ErrorOut
 from mapserver.service.map_clock import ClockDeclarationError, MapClock
 
@@ -52,11 +50,7 @@ def get_clock(request: Request) -> ClockOut:
     summary="Declare a simulation's clock (as ROS's /clock); it binds for clock.sim_ttl_s",
 )
 async def put_clock(request: Request) -> ClockOut:
-    body = await read_json(request)
-    try:
-        declared = ClockIn.model_validate(body)
-    except ValidationError as exc:
-        raise RequestValidationError(exc.errors(include_url=False)) from None
+    declared = await read_model(request, ClockIn)
     clock: MapClock = request.app.state.service.clock
     try:
         clock.declare(declared.now)

@@ -4,11 +4,9 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, HTTPException, Request
-from fastapi.exceptions import RequestValidationError
-from pydantic import ValidationError
 
 from mapserver.api.auth import READ, WRITE, require, require_unit
-from mapserver.api.body import body_schema, read_json
+from mapserver.api.body import body_schema, read_model
 from mapserver.api.schemas import ErrorOut, UnitsAck, UnitsIn, UnitsOut
 from mapserver.api.unit_board import UnitBoardError
 
@@ -24,11 +22,7 @@ router = APIRouter(tags=["units"])
     summary="Publish units' poses, planned paths and freezes (all or none)",
 )
 async def post_units(request: Request) -> UnitsAck:
-    body = await read_json(request)
-    try:
-        posted = UnitsIn.model_validate(body)
-    except ValidationError as exc:
-        raise RequestValidationError(exc.errors(include_url=False)) from None
+    posted = await read_model(request, UnitsIn)
     for i, state in enumerate(posted.units):
         require_unit(request, state.unit_id, f"units[{i}].unit_id")
     try:
