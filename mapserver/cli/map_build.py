@@ -1,4 +1,4 @@
-"""``fleetmap map build``: fuse a recorded scan file offline and write the map files."""
+"""``fleetmap map build``: fuse a recording offline and write the map files."""
 
 from __future__ import annotations
 
@@ -7,20 +7,15 @@ import json
 import sys
 from pathlib import Path
 
+from mapserver.cli.args import xy_pair
+from mapserver.cli.progress import ScanProgress
+from mapserver.cli.recording_args import add_recording_args, recording_options_from_args
 from mapserver.core.belief import BeliefGrid
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 from mapserver.store.offline import fuse_all, write_map_outputs
-from mapserver.store.scanfile import ScanFileError, read_scan_file
-
-
-def xy_pair(text: str) -> tuple[float, float]:
-    """argparse type for ``X,Y`` [m]."""
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
-    return x, y
+from mapserver.store.recordings import Recording, open_recording
+from mapserver.store.recordings.grid_fit import fit_grid
 
 
 def _range_or_none(text: str) -> float | None:
@@ -111,42 +106,61 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
     map_sub = map_parser.add_subparsers(dest="map_command", required=True)
     build = map_sub.add_parser(
         "build",
-        help="fuse a recorded scan file (JSONL) into map.yaml + map.pgm + logodds.npy",
-        description="Fuse a JSONL scan file offline; writes ROS map_server files and log-odds.",
+        help="fuse a recording (ROS bag, CARMEN log, scan JSONL) into map.yaml + map.pgm "
+        "+ logodds.npy",
+        description="Fuse a recording offline; writes ROS map_server files and log-odds. "
+        "Without --width/--height the grid is sized from the data (docs/recordings.md).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    build.add_argument("scans", type=Path, help="scan file, one docs/http-api.md 2.1 scan per line")
-    build.add_argument("--width", type=int, required=True, help="[cells]")
-    build.add_argument("--height", type=int, required=True, help="[cells]")
-    build.add_argument("--resolution", type=float, required=True, help="[m/cell]")
     build.add_argument(
-        "--origin", type=xy_pair, default=(0.0, 0.0), help="X,Y [m] of cell (0,0)'s corner"
+        "recording", type=Path, help="ROS 1 or 2 bag, CARMEN log or scan file (docs/recordings.md)"
     )
-    build.add_argument("--out", type=Path, default=Path("."), help="output folder (default .)")
+    build.add_argument("--width", type=int, help="[cells] (default: sized from the data)")
+    build.add_argument("--height", type=int, help="[cells] (default: sized from the data)")
+    build.add_argument("--resolution", type=float, default=0.05, help="[m/cell]")
+    build.add_argument(
+        "--origin",
+        type=xy_pair,
+        default=None,
+        help="X,Y [m] of cell (0,0)'s corner (default: 0,0 with --width/--height, "
+        "else sized from the data)",
+    )
+    build.add_argument("--out", type=Path, default=Path("."), help="output folder")
     build.add_argument("--json", action="store_true", help="print the figures as JSON last")
+    add_recording_args(build)
     add_sensor_model_args(build)
     build.set_defaults(handler=run_map_build)
 
 
+def grid_from_args(args: argparse.Namespace, recording: Recording) -> GridGeometry:
+    """The grid the flags choose, or one sized from the recording (a first pass over it)
+    when neither --width nor --height is given; ValueError names a missing one."""
+    if args.width is None and args.height is None:
+        if args.origin is not None:
+            raise ValueError("--origin needs --width and --height (or neither, to size from data)")
+        return fit_grid(recording, args.resolution)
+    if args.width is None or args.height is None:
+        missing = "--width" if args.width is None else "--height"
+        raise ValueError(f"{missing} is missing: give both --width and --height, or neither")
+    return GridGeometry(args.width, args.height, args.resolution, *(args.origin or (0.0, 0.0)))
+
+
 def run_map_build(args: argparse.Namespace) -> int:
-    """Parse, validate, fuse, write; returns the exit code (2 for bad input)."""
+    """Open, validate, fuse, write; returns the exit code (2 for bad input: nothing written)."""
     try:
-        geometry = GridGeometry(args.width, args.height, args.resolution, *args.origin)
         model, policy, decay = sensor_model_from_args(args)
-        scans = read_scan_file(args.scans)
-    except (ValueError, ScanFileError) as exc:
+        recording = open_recording(args.recording, recording_options_from_args(args))
+        geometry = grid_from_args(args, recording)
+        belief = BeliefGrid(geometry, model, policy, decay)
+        progress = ScanProgress("fused")
+        stats = fuse_all(belief, recording, progress, total=recording.scan_count())
+        progress.finish()
+    except ValueError as exc:  # RecordingError, ScanFileError, FieldError: all ValueErrors
         print(f"fleetmap map build: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"fleetmap map build: error: cannot read {args.scans}: {exc}", file=sys.stderr)
+        print(f"fleetmap map build: error: cannot read {args.recording}: {exc}", file=sys.stderr)
         return 2
-    belief = BeliefGrid(geometry, model, policy, decay)
-
-    def progress(done: int, total: int) -> None:
-        print(f"\rfused {done}/{total} scans", end="", file=sys.stderr, flush=True)
-
-    stats = fuse_all(belief, scans, progress if sys.stderr.isatty() else None)
-    if sys.stderr.isatty():
-        print(file=sys.stderr)
     yaml_path = write_map_outputs(belief, args.out)
     if args.json:
         print(json.dumps(stats.as_dict()))
@@ -154,6 +168,8 @@ def run_map_build(args: argparse.Namespace) -> int:
         print(
             f"fused {stats.scans} scans ({stats.cells_updated} cell updates) in "
             f"{stats.fusion_s:.3f} s = {stats.scans_per_s:.0f} scans/s (kernel load "
-            f"{stats.kernel_load_s:.3f} s apart); wrote {yaml_path}"
+            f"{stats.kernel_load_s:.3f} s apart) into {geometry.width} x {geometry.height} "
+            f"cells at {geometry.resolution} m, origin {geometry.origin_x:g},"
+            f"{geometry.origin_y:g}; wrote {yaml_path}"
         )
     return 0

@@ -12,7 +12,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,24 +53,29 @@ class FusionStats:
 
 def fuse_all(
     belief: BeliefGrid,
-    scans: Sequence[Scan],
-    progress: Callable[[int, int], None] | None = None,
+    scans: Iterable[Scan],
+    progress: Callable[[int, int | None], None] | None = None,
+    total: int | None = None,
 ) -> FusionStats:
-    """Fuse scans in order; ``progress(done, total)`` is called now and then. The fusion
+    """Fuse scans in order, streamed (an iterator is read once, one scan at a time);
+    ``progress(done, total)`` is called after every scan, ``total`` being
+    ``len(scans)`` for a sequence, else the ``total`` given (None: unknown). The fusion
     kernel is loaded first, timed apart from the fusion."""
     kernel_load_s = load_fusion_kernels()
+    if total is None and isinstance(scans, Sized):
+        total = len(scans)
     cells = 0
     elapsed = 0.0
-    total = len(scans)
-    step = max(1, total // 20)
-    for i, scan in enumerate(scans, start=1):
+    done = 0
+    for scan in scans:
         t0 = time.perf_counter()
         cells += belief.fuse(scan).cells
         elapsed += time.perf_counter() - t0
-        if progress is not None and (i % step == 0 or i == total):
-            progress(i, total)
+        done += 1
+        if progress is not None:
+            progress(done, total)
     return FusionStats(
-        scans=total, fusion_s=elapsed, cells_updated=cells, kernel_load_s=kernel_load_s
+        scans=done, fusion_s=elapsed, cells_updated=cells, kernel_load_s=kernel_load_s
     )
 
 

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from fleet.bullet import SimulatorMissing, load_pybullet
+from mapserver.cli.args import CommandParser
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
@@ -22,7 +23,7 @@ SIMULATOR_COMMANDS = frozenset({"run", "compare", "sweep"})
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="fleetmap",
         description="Shared occupancy maps for robot fleets: fuse, serve, simulate, measure.",
     )

@@ -13,7 +13,7 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from mapserver.cli.map_build import xy_pair
+from mapserver.cli.args import xy_pair
 from mapserver.core.inflation import InflationParams
 from mapserver.costmap.layered import LayeredCostmap
 from mapserver.costmap.layers import InflationLayer, StaticLayer

@@ -156,7 +156,7 @@ def test_the_fill_flag_turns_the_fill_between_beams_off(tmp_path):
 
 def test_a_missing_scan_file_is_a_clear_error(tmp_path, capsys):
     assert main(["map", "build", str(tmp_path / "nope.jsonl"), *ARGS]) == 2
-    assert "cannot read" in capsys.readouterr().err
+    assert "nope.jsonl: no such file or folder" in capsys.readouterr().err
 
 
 def test_the_console_command_runs_map_build(scan_file, tmp_path):

@@ -1,0 +1,29 @@
+"""``open_recording``: the reader for a path, chosen by what the path is."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from mapserver.store.recordings.base import Recording, RecordingError, RecordingOptions
+from mapserver.store.recordings.scan_jsonl import ScanFileRecording
+
+Reader = Callable[[Path, RecordingOptions], Recording]
+
+READERS: list[tuple[str, Callable[[Path], bool], Reader]] = [
+    ("scan file (*.jsonl)", lambda p: p.is_file() and p.suffix == ".jsonl", ScanFileRecording),
+]
+"""(what it reads, whether a path is one, the reader), tried in order."""
+
+
+def open_recording(path: Path | str, options: RecordingOptions | None = None) -> Recording:
+    """The recording at ``path`` opened with its reader; RecordingError when the path
+    does not exist or no reader knows it (the message lists what is read)."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file or folder")
+    for _, matches, reader in READERS:
+        if matches(path):
+            return reader(path, options or RecordingOptions())
+    known = "; ".join(what for what, _, _ in READERS)
+    raise RecordingError(f"{path}: not a recording fleetmap reads (it reads: {known})")
