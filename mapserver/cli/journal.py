@@ -37,8 +37,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mapserver.core.belief import state_names
 from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import Scan, ScanError
+from mapserver.core.sensor_model import Policy
 from mapserver.service.map_service import MAP_SETTINGS_FILE, read_map_settings
 from mapserver.store.datadir_lock import FileLocks, LockBusy
 from mapserver.store.journal import (
@@ -226,8 +228,10 @@ def _row_problem(row: RawRow) -> str | None:
 
 def _check_snapshots(path: Path, data_dir: Path, report: CheckReport) -> None:
     try:
-        grid = read_map_settings(data_dir)["grid"]
+        recorded = read_map_settings(data_dir)
+        grid = recorded["grid"]
         shape = (int(grid["height"]), int(grid["width"]))
+        names = state_names(Policy.parse(recorded.get("policy", Policy.DECAY.value)))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         report.problems.append(f"{MAP_SETTINGS_FILE} does not read: {exc}")
         shape = None
@@ -246,7 +250,7 @@ def _check_snapshots(path: Path, data_dir: Path, report: CheckReport) -> None:
         for seq in seqs:
             try:
                 snapshot = journal.load_snapshot(seq)
-                problem = None if shape is None else snapshot_problem(snapshot, shape)
+                problem = None if shape is None else snapshot_problem(snapshot, shape, names)
             except JournalError as exc:
                 problem = str(exc)
             if problem is None:

@@ -111,7 +111,7 @@ class BeliefGrid:
 
     geometry: the grid's size and placement.
     sensor_model: the inverse sensor model and thresholds.
-    policy: ``decay`` (default), ``binary`` or ``sticky`` (see ``Policy``).
+    policy: ``decay`` (default), ``binary``, ``sticky`` or ``dual`` (see ``Policy``).
     decay: half lives and fade bound (used by the ``decay`` policy only).
     max_clearing_range: [m] cap on how far a no-return beam clears (default: the scan's
         own range_max, as REP 117 implies), on top of ``sensor_model.no_return_range``.
@@ -144,9 +144,12 @@ class BeliefGrid:
         self._last_observed = np.full(geometry.size, np.nan, dtype=np.float64)
         self._marks = np.zeros(kernel.marks_size(geometry.size), dtype=np.uint8)
         self._fade_cache = np.empty((kernel.FADE_CACHE_SIZE, 3), dtype=np.float64)
+        # The free-space history: one byte per cell under ``dual``, unused (one byte) else.
+        history_cells = geometry.size if self.policy is Policy.DUAL else 1
+        self._history = np.zeros(history_cells, dtype=np.uint8)
         # The kernel's argument groups (the arrays are only ever updated in place).
         self._kernel_buffers = kernel.KernelBuffers(
-            self._log_odds, self._last_observed, self._marks, self._fade_cache
+            self._log_odds, self._last_observed, self._marks, self._fade_cache, self._history
         )
         # Fixed argument types (an int origin or clamp would be a new signature to
         # compile): every grid runs the kernels ``load_fusion_kernels`` loads.
@@ -157,7 +160,7 @@ class BeliefGrid:
         self._kernel_model = kernel.KernelModel(
             *(float(v) for v in (m.l_hit, m.l_miss, m.l_miss_no_return, m.l0, m.clamp_min)),
             float(m.clamp_max), int(POLICY_CODES[self.policy]),
-            float(d.half_life_occupied), float(d.half_life_free),
+            float(d.half_life_occupied), float(d.half_life_free), float(m.l_void),
         )  # fmt: skip
         self.stamp = -math.inf  # the latest stamp fused: the map's "now"
         self.scans_fused = 0
@@ -340,21 +343,67 @@ class BeliefGrid:
         return states
 
     # ------------------------------------------------------------- snapshots
-    def load_state(self, log_odds: np.ndarray, last_observed: np.ndarray, stamp: float) -> None:
-        """Replace the grid's contents (from a snapshot); arrays of shape (height, width)."""
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """The arrays that make up the grid's state (``state_arrays``)."""
+        return state_names(self.policy)
+
+    def void_mask(self) -> np.ndarray:
+        """(height, width) bool: cells seen free for good (``dual``; all False otherwise)."""
+        if self.policy is not Policy.DUAL:
+            return np.zeros(self.geometry.shape, dtype=bool)
+        return self._history.reshape(self.geometry.shape) == kernel.HISTORY_VOID
+
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """Copies of the state arrays named by ``state_names``, each (height, width)."""
+        views = {
+            "log_odds": self._log_odds,
+            "last_observed": self._last_observed,
+            "history": self._history,
+        }
+        return {name: views[name].reshape(self.geometry.shape).copy() for name in self.state_names}
+
+    def load_state(
+        self,
+        log_odds: np.ndarray,
+        last_observed: np.ndarray,
+        stamp: float,
+        history: np.ndarray | None = None,
+    ) -> None:
+        """Replace the grid's contents (from a snapshot or another grid); arrays of shape
+        (height, width). ``history`` is required under ``dual`` and refused otherwise."""
         shape = self.geometry.shape
-        for name, arr in (("log_odds", log_odds), ("last_observed", last_observed)):
-            if np.shape(arr) != shape:
+        wanted = self.policy is Policy.DUAL
+        if (history is not None) != wanted:
+            need = "needs a" if wanted else "has no"
+            raise ValueError(f"the {self.policy.value} policy {need} history array")
+        arrays = {"log_odds": log_odds, "last_observed": last_observed, "history": history}
+        for name, arr in arrays.items():
+            if arr is not None and np.shape(arr) != shape:
                 raise ValueError(f"{name} must have shape {shape}, got {np.shape(arr)}")
         self._log_odds[:] = np.asarray(log_odds, dtype=np.float32).ravel()
         self._last_observed[:] = np.asarray(last_observed, dtype=np.float64).ravel()
+        if history is not None:
+            self._history[:] = np.asarray(history, dtype=np.uint8).ravel()
         self.stamp = float(stamp)
+
+    def copy_state_from(self, other: BeliefGrid) -> None:
+        """Take ``other``'s state (same geometry and policy)."""
+        self.load_state(stamp=other.stamp, **other.state_arrays())
 
     def _has_stamp(self, stamp: float | None) -> bool:
         return stamp is not None or math.isfinite(self.stamp)
 
     def _resolve_stamp(self, stamp: float | None) -> float:
         return float(self.stamp if stamp is None else stamp)
+
+
+def state_names(policy: Policy) -> tuple[str, ...]:
+    """The arrays a grid's state holds under ``policy`` (a snapshot's arrays): log_odds and
+    last_observed, and under ``dual`` the free-space history."""
+    if policy is Policy.DUAL:
+        return ("log_odds", "last_observed", "history")
+    return ("log_odds", "last_observed")
 
 
 def load_fusion_kernels() -> float:

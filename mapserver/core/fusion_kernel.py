@@ -53,7 +53,8 @@ class KernelGrid(NamedTuple):
 
 class KernelModel(NamedTuple):
     """The update rule: log-odds of a hit, a pass and a no-return pass, the prior and the
-    clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]."""
+    clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]; the log-odds
+    below which a cell is void for good (``POLICY_DUAL``)."""
 
     l_hit: float
     l_miss: float
@@ -64,17 +65,21 @@ class KernelModel(NamedTuple):
     policy: int
     half_life_occupied: float
     half_life_free: float
+    l_void: float
 
 
 class KernelBuffers(NamedTuple):
     """The arrays fusion updates, owned by the caller: log_odds (float32, one per cell, flat),
     last_observed (float64 [s], NaN never), marks (uint8, one per cell, zero, padded to a
-    multiple of 8: ``marks_size``), fade_cache (float64 (FADE_CACHE_SIZE, 3))."""
+    multiple of 8: ``marks_size``), fade_cache (float64 (FADE_CACHE_SIZE, 3)), history
+    (uint8, one per cell under ``POLICY_DUAL``: ``HISTORY_VOID`` once seen free for good,
+    else 0; any length under the other policies, which never read it)."""
 
     log_odds: np.ndarray
     last_observed: np.ndarray
     marks: np.ndarray
     fade_cache: np.ndarray
+    history: np.ndarray
 
 
 def marks_size(cells: int) -> int:
@@ -110,6 +115,11 @@ MARK_HIT = 3
 POLICY_DECAY = 0
 POLICY_BINARY = 1
 POLICY_STICKY = 2
+POLICY_DUAL = 3
+
+# A cell's free-space history under POLICY_DUAL.
+HISTORY_STRUCTURE = 0  # never seen free for good: what is hit here is structure
+HISTORY_VOID = 1  # seen free for good (log-odds below l_void once): hits are transient
 
 
 @njit(cache=True, nogil=True)
@@ -399,6 +409,10 @@ def apply_marks(buffers, box, grid, scan, model):
     - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
     - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE or NO_RETURN (last ray
       wins).
+    - dual: a *structure* cell (history 0) as sticky but clamped, ``L <- clamp(L + w *
+      (l - l0))``, no fade; once its ``L`` falls below ``l_void`` it is *void* for good
+      (history ``HISTORY_VOID``), and a void cell follows the binary rule: what appears
+      in space seen free is transient and one pass clears it (docs/dual.md).
     The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
@@ -406,7 +420,8 @@ def apply_marks(buffers, box, grid, scan, model):
     fade_cache: float64 (FADE_CACHE_SIZE, 3) scratch (see ``fade``), owned by the caller.
     """
     log_odds, last_observed = buffers.log_odds, buffers.last_observed
-    marks, fade_cache = buffers.marks, buffers.fade_cache
+    marks, fade_cache, history = buffers.marks, buffers.fade_cache, buffers.history
+    l_void = model.l_void
     width, origin_x, origin_y, resolution = (
         grid.width, grid.origin_x, grid.origin_y, grid.resolution
     )  # fmt: skip
@@ -437,7 +452,9 @@ def apply_marks(buffers, box, grid, scan, model):
                     continue
                 marks[idx] = MARK_NONE
                 n += 1
-                if policy == POLICY_BINARY:
+                if policy == POLICY_BINARY or (
+                    policy == POLICY_DUAL and history[idx] == HISTORY_VOID
+                ):
                     log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
                 else:
                     ev = ev_hit if mark == MARK_HIT else (ev_free if mark == MARK_FREE else ev_nr)
@@ -458,17 +475,23 @@ def apply_marks(buffers, box, grid, scan, model):
                                 last_t = t
                             dev = value - l0
                             value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
-                        value += ev
-                        if value < clamp_min:
-                            value = clamp_min
-                        elif value > clamp_max:
-                            value = clamp_max
+                        value = _clamped(value + ev, clamp_min, clamp_max)
+                    elif policy == POLICY_DUAL:  # a structure cell: clamped, no fade
+                        value = _clamped(value + ev, clamp_min, clamp_max)
+                        if value < l_void:
+                            history[idx] = HISTORY_VOID
                     else:
                         value += ev
                     log_odds[idx] = value
                 if not (last_observed[idx] >= stamp):
                     last_observed[idx] = stamp
     return n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _clamped(value, low, high):
+    """``value`` clamped to [low, high]."""
+    return low if value < low else (high if value > high else value)
 
 
 FADE_CACHE_SIZE = 1024

@@ -61,11 +61,17 @@ class Policy(StrEnum):
       occupied (``clamp_max``), a pass clears it (``clamp_min``); no decay; a no-return
       beam is a pass out to ``range_max`` (Nav2 with ``inf_is_valid: true``).
     - ``sticky``: log-odds with no clamp and no decay.
+    - ``dual``: structure and transients told apart per cell by the cell's free-space
+      history (docs/dual.md): a cell never seen free is *structure*: clamped log-odds
+      that do not fade while unobserved; a cell once seen free (``void_threshold``) is
+      *void*, and what appears there later is transient: the last ray wins, as in
+      ``binary``, so one pass clears it.
     """
 
     DECAY = "decay"
     BINARY = "binary"
     STICKY = "sticky"
+    DUAL = "dual"
 
     @classmethod
     def parse(cls, value: str | Policy) -> Policy:
@@ -78,7 +84,7 @@ class Policy(StrEnum):
 
 
 # Kernel codes for the policies (numba kernels take integers, not enums).
-POLICY_CODES = {Policy.DECAY: 0, Policy.BINARY: 1, Policy.STICKY: 2}
+POLICY_CODES = {Policy.DECAY: 0, Policy.BINARY: 1, Policy.STICKY: 2, Policy.DUAL: 3}
 
 
 def _probability(name: str, value: float) -> float:
@@ -109,6 +115,12 @@ class SensorModel:
         surface it hit, square to that surface, so beams glancing along a face do not
         wear away the face cells square beams hit (log-odds policies only;
         docs/clearing.md).
+    void_threshold: probability (below ``free_threshold``) under which a cell counts as
+        seen free for good under the ``dual`` policy: from then on it is *void* space,
+        where whatever appears is transient (docs/dual.md). The default, 0.05 (-2.94
+        log-odds), takes 8 net passes from the prior: more than range noise or a
+        grazing beam gives a wall cell, fewer than a floor cell gets from one unit
+        driving by.
     """
 
     p_hit: float = 0.7
@@ -122,13 +134,23 @@ class SensorModel:
     no_return_range: float | None = 1.0
     fill_between_beams: bool = True
     guard_glancing_faces: bool = True
+    void_threshold: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("fill_between_beams", "guard_glancing_faces"):
             if not isinstance(getattr(self, name), bool):
                 raise FieldError(name, getattr(self, name), "must be true or false")
-        for name in ("p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold"):
+        for name in (
+            "p_hit", "p_miss", "prior", "occupied_threshold", "free_threshold", "void_threshold"
+        ):  # fmt: skip
             _probability(name, getattr(self, name))
+        if not self.void_threshold < self.free_threshold:
+            raise FieldError(
+                "void_threshold",
+                self.void_threshold,
+                f"must be below free_threshold ({self.free_threshold}): a cell counts as "
+                "seen free for good only once it is free",
+            )
         _probability("p_miss_no_return", self.p_miss_no_return)
         if not self.p_hit > self.prior:
             raise FieldError("p_hit", self.p_hit, f"must be greater than the prior ({self.prior})")
@@ -203,6 +225,11 @@ class SensorModel:
     def l_free(self) -> float:
         """[log-odds] a cell is free below this."""
         return logit(self.free_threshold)
+
+    @property
+    def l_void(self) -> float:
+        """[log-odds] below this a cell is void for good (the ``dual`` policy)."""
+        return logit(self.void_threshold)
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,7 @@ from mapserver.core.queries import (
     sample_cells,
 )
 from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import SensorModel
 from mapserver.core.text import clip, quote
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
@@ -501,8 +502,7 @@ class MapService:
     def _take_snapshot(self) -> tuple[int, float, dict[str, np.ndarray]]:
         with self._lock:
             arrays = {
-                "log_odds": self.belief.raw_log_odds().copy(),
-                "last_observed": self.belief.last_observed().copy(),
+                **self.belief.state_arrays(),
                 "scans_fused": np.array(self.belief.scans_fused),
             }
             self._since_snapshot = 0
@@ -623,7 +623,7 @@ class MapService:
     def _belief_copy(self) -> BeliefGrid:
         """A copy of the belief (caller holds the lock)."""
         copy = self.settings.belief_grid(self.geometry)
-        copy.load_state(self.belief.raw_log_odds(), self.belief.last_observed(), self.belief.stamp)
+        copy.copy_state_from(self.belief)
         return copy
 
     def _frozen_layers(self, belief: BeliefGrid | None = None) -> list:
@@ -684,7 +684,8 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     the values filled in. Such a dir opens under those settings, not the new defaults.
     One written before the fill between beams and the guard of glancing faces
     (docs/clearing.md) records no ``fill_between_beams`` or ``guard_glancing_faces``:
-    false is filled in for each.
+    false is filled in for each. One written before the ``dual`` policy records no
+    ``void_threshold``, which only ``dual`` reads: today's default is filled in.
     """
     recorded = json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
     model = recorded.get("sensor_model")
@@ -694,6 +695,7 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     if isinstance(model, dict):
         model.setdefault("fill_between_beams", False)
         model.setdefault("guard_glancing_faces", False)
+        model.setdefault("void_threshold", SensorModel().void_threshold)  # dual's alone
     return recorded
 
 

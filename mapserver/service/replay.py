@@ -34,7 +34,7 @@ from mapserver.store.journal import (
     open_journal_for_replay,
 )
 from mapserver.store.journal_reading import ReadRecord, read_records
-from mapserver.store.snapshot_state import load_snapshot_into, snapshot_problem
+from mapserver.store.snapshot_state import GRID_ARRAYS, load_snapshot_into, snapshot_problem
 
 
 class ReplayError(FleetmapError, ValueError):
@@ -64,7 +64,7 @@ def replay_journal(
     after = 0
     try:
         with open_journal_for_replay(journal_file) as journal:
-            start = replay_start(journal, belief.geometry.shape)
+            start = replay_start(journal, belief.geometry.shape, belief.state_names)
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None
     if start is not None:
@@ -80,7 +80,9 @@ def replay_journal(
     return belief, [scan for _, scan in scans], skipped
 
 
-def replay_start(journal: Journal, shape: tuple[int, int]) -> Snapshot | None:
+def replay_start(
+    journal: Journal, shape: tuple[int, int], names: tuple[str, ...] = GRID_ARRAYS
+) -> Snapshot | None:
     """The snapshot a replay of ``journal`` starts from: None (an empty grid, seq 0) when
     the journal still holds its first scans, else the oldest kept snapshot at or after
     retention's cut that loads into a grid of ``shape``; JournalError when none does."""
@@ -96,7 +98,7 @@ def replay_start(journal: Journal, shape: tuple[int, int]) -> Snapshot | None:
         except JournalError as exc:
             problems.append(str(exc))
             continue
-        problem = snapshot_problem(snapshot, shape)
+        problem = snapshot_problem(snapshot, shape, names)
         if problem is None:
             return snapshot
         problems.append(f"snapshot at seq {seq}: {problem}")

@@ -94,7 +94,7 @@ def test_a_scan_changes_only_cells_its_beams_cross_up_to_their_returns(scan, pol
 @settings(max_examples=60, deadline=None)
 @given(sequence=st.lists(scans(), min_size=1, max_size=8))
 def test_clamped_policies_never_leave_the_clamp_range(sequence):
-    for policy in (Policy.DECAY, Policy.BINARY):
+    for policy in (Policy.DECAY, Policy.BINARY, Policy.DUAL):
         b = BeliefGrid(GEOMETRY, MODEL, policy, DecayParams(5.0, 20.0))
         for scan in sorted(sequence, key=lambda s: s.stamp):
             b.fuse(scan)
@@ -113,3 +113,19 @@ def test_the_same_scans_give_the_same_grid(sequence, policy):
             b.fuse(scan)
     assert grids[0].raw_log_odds().tobytes() == grids[1].raw_log_odds().tobytes()
     assert grids[0].last_observed().tobytes() == grids[1].last_observed().tobytes()
+
+
+@settings(max_examples=60, deadline=None)
+@given(sequence=st.lists(scans(), min_size=1, max_size=8))
+def test_void_space_is_void_for_good_and_was_free_when_it_turned(sequence):
+    b = BeliefGrid(GEOMETRY, MODEL, Policy.DUAL)
+    void = b.void_mask()
+    for scan in sorted(sequence, key=lambda s: s.stamp):
+        before = b.raw_log_odds().copy()
+        b.fuse(scan)
+        now = b.void_mask()
+        assert not (void & ~now).any()  # never taken back
+        turned = now & ~void
+        assert (b.raw_log_odds()[turned] < MODEL.l_void).all()
+        assert (before[turned] >= MODEL.l_void).all()
+        void = now

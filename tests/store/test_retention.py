@@ -50,14 +50,15 @@ def validated(i: int, unit: str = "u1") -> dict:
     return Scan.from_dict(body(i, unit)).journal_record()
 
 
-def retaining(data: Path, **journal) -> MapService:
+def retaining(data: Path, policy: str = "decay", **journal) -> MapService:
     settings = {"snapshot_every_scans": 25, "retain_seconds": None, **journal}
-    return MapService(small_settings(data, journal=settings))
+    return MapService(small_settings(data, journal=settings, policy=policy))
 
 
-def belief_arrays(service_or_belief) -> tuple[bytes, bytes]:
+def belief_arrays(service_or_belief) -> dict[str, bytes]:
+    """Every state array of the belief (the dual policy's history too), as bytes."""
     belief = getattr(service_or_belief, "belief", service_or_belief)
-    return belief.raw_log_odds().tobytes(), belief.last_observed().tobytes()
+    return {name: array.tobytes() for name, array in belief.state_arrays().items()}
 
 
 # ------------------------------------------------------------------------ planning
@@ -130,9 +131,11 @@ def test_the_file_stops_growing_once_retention_is_reached(tmp_path: Path) -> Non
 
 
 # -------------------------------------------------------- restart, replay, kill -9
-def test_restart_equals_a_replay_from_the_oldest_kept_snapshot(tmp_path: Path) -> None:
+@pytest.mark.parametrize("policy", ["decay", "dual"])
+def test_restart_equals_a_replay_from_the_oldest_kept_snapshot(tmp_path: Path, policy) -> None:
     data = tmp_path / "data"
-    service = retaining(data, retain_bytes=1_300_000)  # 4 snapshots of 240 kB + ~100 scans
+    # 4 snapshots of 240 kB (+ 60 kB of free-space history under dual) + ~100 scans
+    service = retaining(data, policy, retain_bytes=1_300_000)
     try:
         for i in range(400):
             service.ingest([Scan.from_dict(body(i, f"u{i % 3}"))])
@@ -146,8 +149,9 @@ def test_restart_equals_a_replay_from_the_oldest_kept_snapshot(tmp_path: Path) -
     assert skipped == [] and belief.scans_fused == base
     for scan in scans:
         belief.fuse(scan)
-    restarted = MapService(small_settings(data, journal={"retain_seconds": None}))
+    restarted = MapService(small_settings(data, journal={"retain_seconds": None}, policy=policy))
     try:
+        assert restarted.belief.state_names == belief.state_names
         assert restarted.version == 400
         assert belief_arrays(restarted) == belief_arrays(belief)
     finally:
