@@ -181,9 +181,10 @@ def run_case(
                 clock["stamp"] += config.period
                 pose = Pose2D(float(x), lane_y, 0.0)
                 world.set_unit_pose("u1", pose)
-                scan = Scan(
+                ranges = lidar.measure(world, "u1").astype(np.float32).astype(np.float64)
+                scan = Scan(  # ranges at the journal's float32 precision, as a unit posts
                     "u1", clock["stamp"], pose, lidar.angle_min, lidar.angle_increment,
-                    config.range_min, config.range_max, lidar.measure(world, "u1"),
+                    config.range_min, config.range_max, ranges,
                 )  # fmt: skip
                 service.ingest([scan])
                 return scan

@@ -178,7 +178,7 @@ def test_sensor_model_error_names_the_nested_field() -> None:
 def test_unknown_policy_names_the_choices() -> None:
     (line,) = problems(policy="fancy")
     assert line.startswith("policy:")
-    assert "'decay', 'binary' or 'sticky'" in line and "'fancy'" in line
+    assert "'decay', 'binary', 'sticky' or 'dual'" in line and "'fancy'" in line
 
 
 def test_negative_resolution_names_the_field_and_value() -> None:
