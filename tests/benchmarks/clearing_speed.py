@@ -113,10 +113,10 @@ def settings_for(policy: str, data_dir: Path, resolution: float, extra: dict[str
     return load_settings(None, overrides)
 
 
-def perimeter_walls(thickness: float = 0.3) -> list[Obstacle]:
-    """Walls around the floor, so that every beam returns (a no-return beam is weak
-    evidence and clears only near the unit: docs/no-return.md)."""
-    w, h, t = FLOOR[0], FLOOR[1], thickness
+def perimeter_walls(floor: tuple[float, float] = FLOOR, thickness: float = 0.3) -> list[Obstacle]:
+    """Walls around a ``floor`` (width, height [m]), so that every beam returns (a
+    no-return beam is weak evidence and clears only near the unit: docs/no-return.md)."""
+    w, h, t = floor[0], floor[1], thickness
     boxes = {
         "wall-s": Box(w / 2, t / 2, w, t),
         "wall-n": Box(w / 2, h - t / 2, w, t),
