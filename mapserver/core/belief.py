@@ -161,6 +161,7 @@ class BeliefGrid:
             *(float(v) for v in (m.l_hit, m.l_miss, m.l_miss_no_return, m.l0, m.clamp_min)),
             float(m.clamp_max), int(POLICY_CODES[self.policy]),
             float(d.half_life_occupied), float(d.half_life_free), float(m.l_void),
+            int(m.confirm_hits),
         )  # fmt: skip
         self.stamp = -math.inf  # the latest stamp fused: the map's "now"
         self.scans_fused = 0
@@ -248,8 +249,18 @@ class BeliefGrid:
 
     @property
     def fades(self) -> bool:
-        """True when evidence fades with time (the ``decay`` policy)."""
-        return self.policy is Policy.DECAY
+        """True when evidence fades with time: under ``decay``, and under ``dual`` that of
+        its new cells (``fades_selectively``)."""
+        return self.policy in (Policy.DECAY, Policy.DUAL)
+
+    @property
+    def fades_selectively(self) -> bool:
+        """True when only some cells fade, by their history (``dual``)."""
+        return self.policy is Policy.DUAL
+
+    def history(self) -> np.ndarray:
+        """The flat history array (``dual``: one byte per cell; one unused byte else)."""
+        return self._history
 
     def raw_log_odds(self) -> np.ndarray:
         """Stored log-odds, (height, width) float32 view, as of each cell's last_observed."""
@@ -267,10 +278,19 @@ class BeliefGrid:
         box = box or self.full_box
         raw = self.raw_log_odds()[box.slices]
         t = self.last_observed()[box.slices]
-        return self._faded(raw, t, stamp)
+        return self._faded(raw, t, stamp, self._history_window(box))
 
-    def _faded(self, raw: np.ndarray, t: np.ndarray, stamp: float | None) -> np.ndarray:
-        """Stored log-odds ``raw`` last observed at ``t``, faded to ``stamp`` (a new array)."""
+    def _history_window(self, box: CellBox) -> np.ndarray:
+        """The history of ``box``'s cells (``dual``), else the one unused byte."""
+        if not self.fades_selectively:
+            return self._history
+        return self._history.reshape(self.geometry.shape)[box.slices]
+
+    def _faded(
+        self, raw: np.ndarray, t: np.ndarray, stamp: float | None, history: np.ndarray
+    ) -> np.ndarray:
+        """Stored log-odds ``raw`` last observed at ``t``, faded to ``stamp`` (a new array);
+        under ``dual`` only the cells whose ``history`` (as ``raw``) says new fade."""
         if not self.fades or not self._has_stamp(stamp):
             return np.array(raw, dtype=np.float32)
         out = np.empty(raw.size, dtype=np.float32)
@@ -283,6 +303,8 @@ class BeliefGrid:
             self.decay.half_life_free,
             self._fade_cache,
             out,
+            np.ascontiguousarray(history).ravel(),
+            self.fades_selectively,
         )
         return out.reshape(raw.shape)
 
@@ -297,13 +319,18 @@ class BeliefGrid:
     def known_mask(self, log_odds: np.ndarray, box: CellBox | None = None) -> np.ndarray:
         """Cells observed and not faded back to the prior, for log-odds read from ``box``."""
         box = box or self.full_box
-        return self._known(log_odds, self.last_observed()[box.slices])
+        return self._known(log_odds, self.last_observed()[box.slices], self._history_window(box))
 
-    def _known(self, log_odds: np.ndarray, last_observed: np.ndarray) -> np.ndarray:
+    def _known(
+        self, log_odds: np.ndarray, last_observed: np.ndarray, history: np.ndarray
+    ) -> np.ndarray:
         observed = ~np.isnan(last_observed)
         if not self.fades:
             return observed
-        return observed & (np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound)
+        unfaded = np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound
+        if self.fades_selectively:  # structure and void cells never fade
+            unfaded |= history >= kernel.HISTORY_STRUCTURE
+        return observed & unfaded
 
     def probability_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
         """Occupancy probability (float32) at ``stamp``; NaN where unknown (never/faded)."""
@@ -325,8 +352,9 @@ class BeliefGrid:
         """States, probabilities and stamps of the cells at flat ``indices`` at ``stamp``."""
         idx = np.asarray(indices, dtype=np.int64)
         t = self._last_observed[idx]
-        lo = self._faded(self._log_odds[idx], t, stamp)
-        known = self._known(lo, t)
+        history = self._history[idx] if self.fades_selectively else self._history
+        lo = self._faded(self._log_odds[idx], t, stamp, history)
+        known = self._known(lo, t, history)
         return CellSample(
             states=self.states_from_log_odds(lo, known),
             p_occ=self._probability(lo, known),
@@ -353,6 +381,12 @@ class BeliefGrid:
         if self.policy is not Policy.DUAL:
             return np.zeros(self.geometry.shape, dtype=bool)
         return self._history.reshape(self.geometry.shape) == kernel.HISTORY_VOID
+
+    def structure_mask(self) -> np.ndarray:
+        """(height, width) bool: cells confirmed structure (``dual``; all False otherwise)."""
+        if self.policy is not Policy.DUAL:
+            return np.zeros(self.geometry.shape, dtype=bool)
+        return self._history.reshape(self.geometry.shape) == kernel.HISTORY_STRUCTURE
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         """Copies of the state arrays named by ``state_names``, each (height, width)."""

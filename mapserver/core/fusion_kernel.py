@@ -53,8 +53,9 @@ class KernelGrid(NamedTuple):
 
 class KernelModel(NamedTuple):
     """The update rule: log-odds of a hit, a pass and a no-return pass, the prior and the
-    clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]; the log-odds
-    below which a cell is void for good (``POLICY_DUAL``)."""
+    clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]; under
+    ``POLICY_DUAL``, the log-odds below which a cell is void for good and the scans in a
+    row whose hits make a new cell structure."""
 
     l_hit: float
     l_miss: float
@@ -66,14 +67,15 @@ class KernelModel(NamedTuple):
     half_life_occupied: float
     half_life_free: float
     l_void: float
+    confirm_hits: int
 
 
 class KernelBuffers(NamedTuple):
     """The arrays fusion updates, owned by the caller: log_odds (float32, one per cell, flat),
     last_observed (float64 [s], NaN never), marks (uint8, one per cell, zero, padded to a
     multiple of 8: ``marks_size``), fade_cache (float64 (FADE_CACHE_SIZE, 3)), history
-    (uint8, one per cell under ``POLICY_DUAL``: ``HISTORY_VOID`` once seen free for good,
-    else 0; any length under the other policies, which never read it)."""
+    (uint8, one per cell under ``POLICY_DUAL``, see ``dual_history``; any length under the
+    other policies, which never read it)."""
 
     log_odds: np.ndarray
     last_observed: np.ndarray
@@ -117,9 +119,27 @@ POLICY_BINARY = 1
 POLICY_STICKY = 2
 POLICY_DUAL = 3
 
-# A cell's free-space history under POLICY_DUAL.
-HISTORY_STRUCTURE = 0  # never seen free for good: what is hit here is structure
-HISTORY_VOID = 1  # seen free for good (log-odds below l_void once): hits are transient
+# A cell's history under POLICY_DUAL (one byte): 0 .. HISTORY_STRUCTURE - 1 a *new* cell,
+# counting the scans in a row that hit it (its evidence fades as decay's does);
+HISTORY_STRUCTURE = 254  # hit by ``confirm_hits`` scans in a row: structure, no fade
+HISTORY_VOID = 255  # seen free for good (log-odds below l_void once): hits are transient
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dual_history(history, mark, value, l_void, confirm_hits):
+    """A cell's next history under POLICY_DUAL after an update with ``mark`` left
+    log-odds ``value``: void for good once ``value < l_void``; else a new cell counts
+    the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
+    nothing, leaves it) and is structure at ``confirm_hits``; structure stays."""
+    if value < l_void:
+        return HISTORY_VOID
+    if history >= HISTORY_STRUCTURE:
+        return history
+    if mark == MARK_HIT:
+        return HISTORY_STRUCTURE if history + 1 >= confirm_hits else history + 1
+    if mark == MARK_FREE:
+        return 0
+    return history
 
 
 @njit(cache=True, nogil=True)
@@ -409,10 +429,11 @@ def apply_marks(buffers, box, grid, scan, model):
     - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
     - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE or NO_RETURN (last ray
       wins).
-    - dual: a *structure* cell (history 0) as sticky but clamped, ``L <- clamp(L + w *
-      (l - l0))``, no fade; once its ``L`` falls below ``l_void`` it is *void* for good
-      (history ``HISTORY_VOID``), and a void cell follows the binary rule: what appears
-      in space seen free is transient and one pass clears it (docs/dual.md).
+    - dual, by the cell's history (``dual_history``): a *new* cell as decay; a
+      *structure* cell (hit by ``confirm_hits`` scans in a row) as decay without the
+      fade; a *void* cell (its ``L`` fell below ``l_void`` once) by the binary rule:
+      what appears in space seen free is transient and one pass clears it
+      (docs/dual.md).
     The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
@@ -421,7 +442,7 @@ def apply_marks(buffers, box, grid, scan, model):
     """
     log_odds, last_observed = buffers.log_odds, buffers.last_observed
     marks, fade_cache, history = buffers.marks, buffers.fade_cache, buffers.history
-    l_void = model.l_void
+    l_void, confirm_hits = model.l_void, model.confirm_hits
     width, origin_x, origin_y, resolution = (
         grid.width, grid.origin_x, grid.origin_y, grid.resolution
     )  # fmt: skip
@@ -452,9 +473,8 @@ def apply_marks(buffers, box, grid, scan, model):
                     continue
                 marks[idx] = MARK_NONE
                 n += 1
-                if policy == POLICY_BINARY or (
-                    policy == POLICY_DUAL and history[idx] == HISTORY_VOID
-                ):
+                dual = policy == POLICY_DUAL
+                if policy == POLICY_BINARY or (dual and history[idx] == HISTORY_VOID):
                     log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
                 else:
                     ev = ev_hit if mark == MARK_HIT else (ev_free if mark == MARK_FREE else ev_nr)
@@ -464,24 +484,23 @@ def apply_marks(buffers, box, grid, scan, model):
                         dyc = origin_y + (r + 0.5) * resolution - sensor_y
                         ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
                     value = log_odds[idx]
-                    if policy == POLICY_DECAY:
-                        t = last_observed[idx]
-                        if t < stamp:  # False for NaN (never observed): nothing to fade
-                            if t != last_t:  # neighbours mostly share an earlier scan's
-                                f_occupied, f_free = fade_factors(
-                                    t, stamp, stamp_bits[idx], fade_cache,
-                                    half_life_occupied, half_life_free,
-                                )  # fmt: skip
-                                last_t = t
-                            dev = value - l0
-                            value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
-                        value = _clamped(value + ev, clamp_min, clamp_max)
-                    elif policy == POLICY_DUAL:  # a structure cell: clamped, no fade
-                        value = _clamped(value + ev, clamp_min, clamp_max)
-                        if value < l_void:
-                            history[idx] = HISTORY_VOID
-                    else:
+                    t = last_observed[idx]
+                    fading = policy == POLICY_DECAY or (dual and fades_by_history(history[idx]))
+                    if fading and t < stamp:  # False for NaN (never observed): no fade
+                        if t != last_t:  # neighbours mostly share an earlier scan's
+                            f_occupied, f_free = fade_factors(
+                                t, stamp, stamp_bits[idx], fade_cache,
+                                half_life_occupied, half_life_free,
+                            )  # fmt: skip
+                            last_t = t
+                        dev = value - l0
+                        value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
+                    if policy == POLICY_STICKY:
                         value += ev
+                    else:
+                        value = _clamped(value + ev, clamp_min, clamp_max)
+                    if dual:
+                        history[idx] = dual_history(history[idx], mark, value, l_void, confirm_hits)
                     log_odds[idx] = value
                 if not (last_observed[idx] >= stamp):
                     last_observed[idx] = stamp
@@ -527,23 +546,32 @@ def fade_factors(t, stamp, t_bits, fade_cache, half_life_occupied, half_life_fre
 
 @njit(cache=True, nogil=True)
 def faded_log_odds(
-    log_odds, last_observed, stamp, l0, half_life_occupied, half_life_free, fade_cache, out
-):
+    log_odds, last_observed, stamp, l0, half_life_occupied, half_life_free, fade_cache, out,
+    history, selective,
+):  # fmt: skip
     """Decay view: ``out = l0 + (L - l0) * 2 ** (-max(0, stamp - t) / half_life)`` per cell.
 
     Works on flat arrays of any window; never-observed cells (t NaN) are copied as is.
+    selective (``POLICY_DUAL``): only the cells whose ``history`` (flat, as the window)
+    says new fade (``fades_by_history``); the others are copied as is.
     """
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
     for i in range(log_odds.shape[0]):
         value = log_odds[i]
         t = last_observed[i]
-        if t < stamp:
+        if t < stamp and (not selective or fades_by_history(history[i])):
             value = fade(
                 value, l0, t, stamp, stamp_bits[i], fade_cache, half_life_occupied, half_life_free
             )
         out[i] = value
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def fades_by_history(history):
+    """Whether a cell of this ``POLICY_DUAL`` history fades: only a new one does."""
+    return history < HISTORY_STRUCTURE
 
 
 @njit(cache=True, nogil=True)

@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from mapserver.core.costvalues import FREE, LETHAL, UNKNOWN
-from mapserver.core.fusion_kernel import fade
+from mapserver.core.fusion_kernel import fade, fades_by_history
 
 # A tile is revisited slightly before its computed crossing so float rounding can never
 # make it late; visiting early is harmless (the tile is reclassified, nothing changes).
@@ -48,6 +48,8 @@ def classify_window(
     tile,
     tile_next,
     fade_cache,
+    history,
+    selective,
 ):
     """Merge obstacle costs of cells (col0..col1, row0..row1) at ``stamp`` [s] into ``out``.
 
@@ -61,6 +63,8 @@ def classify_window(
     covers, it is *lowered* to the earliest future crossing of the window's cells in that
     tile (the caller resets covered tiles to +inf first, with tile-aligned windows).
     fade_cache: scratch for ``fusion_kernel.fade``, shape (FADE_CACHE_SIZE, 3).
+    history, selective: under the ``dual`` policy (selective), only the cells whose
+    history (flat grid array) says new fade (``fusion_kernel.fades_by_history``).
     """
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
@@ -74,13 +78,14 @@ def classify_window(
             if math.isnan(t):
                 continue  # unknown never overwrites
             dev = value - l0
-            if fades and t < stamp:
+            cell_fades = fades and (not selective or fades_by_history(history[idx]))
+            if cell_fades and t < stamp:
                 faded = fade(value, l0, t, stamp, stamp_bits[idx], fade_cache,
                              half_life_occupied, half_life_free)  # fmt: skip
                 value = np.float64(np.float32(faded))  # as the belief's float32 views
             if value > l_occupied:
                 _merge(out, row - row0, col - col0, LETHAL)
-                if fades:
+                if cell_fades:
                     cross = t + half_life_occupied * math.log2(dev / (l_occupied - l0))
                     cross -= EARLY_FRACTION * half_life_occupied + EARLY_SECONDS
                     tcol = col // tile
@@ -88,7 +93,7 @@ def classify_window(
                         tile_next[trow, tcol] = cross
             elif value < l_free:
                 _merge(out, row - row0, col - col0, FREE)
-                if fades:
+                if cell_fades:
                     cross = t + half_life_free * math.log2(dev / (l_free - l0))
                     cross -= EARLY_FRACTION * half_life_free + EARLY_SECONDS
                     tcol = col // tile

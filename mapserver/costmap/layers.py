@@ -180,6 +180,8 @@ class ObstacleLayer:
             self.tile,
             self.next_change,
             self._fade_cache,
+            b.history(),
+            b.fades_selectively,
         )
 
 

@@ -66,19 +66,36 @@ def test_a_cell_seen_free_many_times_then_hit_by_a_passing_person_clears_in_one_
     assert b.raw_log_odds()[0, CELL] == -5.0
 
 
-def test_a_structure_face_mapped_on_one_pass_is_lethal_ten_minutes_later_unobserved():
+def test_a_rack_face_mapped_on_one_pass_is_lethal_ten_minutes_later_unobserved():
     b = row_grid()
-    fuse(b, [HIT], 0.0)  # one scan of the rack face
-    assert state(b) is CellState.OCCUPIED  # +0.847 > +0.619
+    for k in range(10):  # one pass by the rack: 10 scans in 1 s hit its face
+        fuse(b, [HIT], k / 10)
+    assert b.structure_mask()[0, CELL]
     assert state(b, 600.0) is CellState.OCCUPIED  # no fade: nobody looked, nothing changed
     decay = BeliefGrid(GridGeometry(12, 1, 1.0), SensorModel(), Policy.DECAY)
-    decay.fuse(make_scan([HIT], stamp=0.0))
+    for k in range(10):
+        decay.fuse(make_scan([HIT], stamp=k / 10))
     assert CellState(decay.states_at(600.0)[0, CELL]) is CellState.UNKNOWN  # decay forgets
+
+
+def test_a_cell_hit_by_fewer_scans_in_a_row_is_new_and_fades_as_decay_does():
+    b = row_grid()
+    decay = BeliefGrid(GridGeometry(12, 1, 1.0), SensorModel(), Policy.DECAY)
+    for grid in (b, decay):
+        for k in range(9):  # a person standing 0.9 s where nobody had looked
+            grid.fuse(make_scan([HIT], stamp=k / 10))
+        grid.fuse(make_scan([PASS], stamp=1.0))  # seen through: the count starts again
+        grid.fuse(make_scan([HIT], stamp=1.1))
+    assert not b.structure_mask()[0, CELL] and not b.void_mask()[0, CELL]
+    for t in (5.0, 60.0, 600.0):
+        assert b.log_odds_at(t)[0, CELL] == decay.log_odds_at(t)[0, CELL]
+    assert state(b, 600.0) is CellState.UNKNOWN
 
 
 def test_a_moved_pod_on_structure_clears_by_observation_in_11_passes():
     b = row_grid()
     fuse(b, [HIT] * 20, 0.0)  # a pod stood here since the start
+    assert b.structure_mask()[0, CELL]
     passes = 0
     while state(b) is CellState.OCCUPIED:
         fuse(b, [PASS], 1.0)
