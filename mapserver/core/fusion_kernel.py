@@ -429,11 +429,12 @@ def apply_marks(buffers, box, grid, scan, model):
     - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
     - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE or NO_RETURN (last ray
       wins).
-    - dual, by the cell's history (``dual_history``): a *new* cell as decay; a
-      *structure* cell (hit by ``confirm_hits`` scans in a row) as decay without the
-      fade; a *void* cell (its ``L`` fell below ``l_void`` once) by the binary rule:
-      what appears in space seen free is transient and one pass clears it
-      (docs/dual.md).
+    - dual, by the cell's history (``dual_history``): a *new* cell as decay, but a pass
+      of a return through it first drops what evidence of occupancy it held (seen
+      through before it was confirmed, it held a transient); a *structure* cell (hit by
+      ``confirm_hits`` scans in a row) as decay without the fade; a *void* cell (its
+      ``L`` fell below ``l_void`` once) by the binary rule: what appears in space seen
+      free is transient and one pass clears it (docs/dual.md).
     The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
@@ -495,6 +496,8 @@ def apply_marks(buffers, box, grid, scan, model):
                             last_t = t
                         dev = value - l0
                         value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
+                    if dual and mark == MARK_FREE and value > l0 and fading:
+                        value = l0  # a new cell seen through: what it held was transient
                     if policy == POLICY_STICKY:
                         value += ev
                     else:

@@ -42,7 +42,7 @@ MAP_SERVER_SECTIONS = {
     "inflation": InflationSettings,
 }
 PolicyName = Annotated[
-    Literal["decay", "binary", "sticky"],
+    Literal[tuple(p.value for p in Policy)],
     reworded("must be one of " + ", ".join(p.value for p in Policy)),
 ]
 """A map policy's name (``Policy``)."""

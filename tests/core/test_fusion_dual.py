@@ -84,12 +84,24 @@ def test_a_cell_hit_by_fewer_scans_in_a_row_is_new_and_fades_as_decay_does():
     for grid in (b, decay):
         for k in range(9):  # a person standing 0.9 s where nobody had looked
             grid.fuse(make_scan([HIT], stamp=k / 10))
-        grid.fuse(make_scan([PASS], stamp=1.0))  # seen through: the count starts again
-        grid.fuse(make_scan([HIT], stamp=1.1))
     assert not b.structure_mask()[0, CELL] and not b.void_mask()[0, CELL]
     for t in (5.0, 60.0, 600.0):
         assert b.log_odds_at(t)[0, CELL] == decay.log_odds_at(t)[0, CELL]
     assert state(b, 600.0) is CellState.UNKNOWN
+
+
+def test_a_new_cell_seen_through_loses_what_it_held_in_one_pass():
+    b = row_grid()
+    for k in range(9):  # the person of the test above, then the next scan sees through
+        b.fuse(make_scan([HIT], stamp=k / 10))
+    b.fuse(make_scan([PASS], stamp=0.9))
+    assert b.raw_log_odds()[0, CELL] == pytest.approx(math.log(0.4 / 0.6), abs=1e-6)
+    assert state(b) is not CellState.OCCUPIED  # decay: 9 * 0.847 - 0.405 = 7.2, clamped 4.6
+    for k in range(10, 20):  # a face, 10 scans in a row: structure, passes no longer reset
+        b.fuse(make_scan([HIT], stamp=k / 10))
+    assert b.structure_mask()[0, CELL]
+    b.fuse(make_scan([PASS], stamp=2.0))
+    assert state(b) is CellState.OCCUPIED  # 5 - 0.405
 
 
 def test_a_moved_pod_on_structure_clears_by_observation_in_11_passes():

@@ -201,6 +201,11 @@ def test_a_scenario_pickles_for_worker_processes():
 def test_overrides_set_dotted_keys_before_validation(tmp_path):
     scenario = load_text(BASE, tmp_path, overrides={"map_server.decay.half_life_occupied": 5})
     assert scenario.map_server.decay.half_life_occupied == 5.0
+    for policy in Policy:  # every policy by name, in a file or an override
+        chosen = load_text(BASE, tmp_path, overrides={"map_server.policy": policy.value})
+        assert chosen.map_server.policy is policy
+        in_file = load_text(BASE.replace("  policy: decay", f"  policy: {policy.value}"), tmp_path)
+        assert in_file.map_server.policy is policy
     with pytest.raises(ScenarioError) as err:
         load_text(BASE, tmp_path, overrides={"map_server.policy": "careful"})
     assert err.value.line is None and err.value.field == "map_server.policy (override)"
@@ -370,7 +375,7 @@ def test_errors_name_the_file_the_line_and_the_field(tmp_path, old, new, field, 
         (
             "policy: decay",
             "policy: careful",
-            "map_server.policy: must be one of decay, binary, sticky, got 'careful'",
+            "map_server.policy: must be one of decay, binary, sticky, dual, got 'careful'",
         ),
         ("  count: 2", "  cont: 2", "units.cont: is not a field of units; did you mean 'count'?"),
         (
