@@ -120,6 +120,15 @@ def _message_name(line: str) -> str:
     return words[0] if words else ""
 
 
+def _stamp_field(line: str) -> float | None:
+    """A laser line's ipc_timestamp (None when it is not a number: the full parse names it)."""
+    words = line.rsplit(None, 3)
+    try:
+        return float(words[-3])
+    except (IndexError, ValueError):
+        return None
+
+
 def carmen_beam_layout(count: int) -> tuple[float, float]:
     """(angle_min, angle_increment) [rad] of an old FLASER/RLASER with ``count`` beams,
     as CARMEN guesses them (module docstring)."""
@@ -282,13 +291,20 @@ class CarmenLogRecording(Recording):
 
     @cached_property
     def _survey(self) -> dict[str, int]:
-        """How many lines of each laser message the log holds (one quick pass)."""
+        """How many lines of each laser message the log holds; sets ``_span_s``, the
+        seconds between their first and last ipc_timestamp (one quick pass; the stamp is
+        the third field from the end of every laser message)."""
         counts = dict.fromkeys(PARSERS, 0)
+        first = last = None
         with open_text(self.path) as handle:
             for line in handle:
                 name = _message_name(line)
                 if name in counts:
                     counts[name] += 1
+                    stamp = _stamp_field(line)
+                    first = stamp if first is None else first
+                    last = stamp if stamp is not None else last
+        self._span_s = None if first is None or last is None else max(last - first, 0.0)
         return counts
 
     @property
@@ -302,6 +318,9 @@ class CarmenLogRecording(Recording):
 
     def scan_count(self) -> int | None:
         return sum(self._survey[kind] for kind in self._kinds)
+
+    def duration(self) -> float | None:
+        return self._span_s if self._survey else None
 
     def describe(self) -> str:
         kinds = "/".join(k for k in self._kinds if self._survey[k])
