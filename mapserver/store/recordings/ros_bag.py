@@ -127,6 +127,8 @@ class Reading:
 class TfPoses:
     """Sensor poses from /tf and /tf_static: the chain from ``fixed_frame``."""
 
+    waits = True  # a scan waits for poses stamped after it
+
     def __init__(self, fixed_frame: str) -> None:
         self.fixed_frame = strip_frame(fixed_frame)
         self.tf = TfBuffer(HISTORY_S)
@@ -207,6 +209,8 @@ class TopicPoses(TfPoses):
 
 class FixedPose(TfPoses):
     """Every scan taken at the one pose the user gave."""
+
+    waits = False
 
     def __init__(self, x: float, y: float, yaw: float) -> None:
         super().__init__("map")
@@ -334,7 +338,8 @@ class RosBagRecording(Recording):
                     placer.newest = max(placer.newest, seconds(msg.header.stamp))
                 else:
                     poses.add(conn.topic, msg)
-                    placer.newest = max(placer.newest, _newest_stamp(msg))
+                    placer.newest_pose = max(placer.newest_pose, _newest_stamp(msg))
+                    placer.newest = max(placer.newest, placer.newest_pose)
                 yield from placer.ready()
             yield from placer.finish()
 
@@ -364,7 +369,8 @@ class _Placer:
         self.poses = poses
         self.unit_id = recording.unit_id()
         self.pending: deque[Reading] = deque()
-        self.newest = -math.inf
+        self.newest = -math.inf  # [s] the latest stamp read, of any message
+        self.newest_pose = -math.inf  # [s] the latest stamp of a transform or pose read
         self.order: StampOrder[Scan] = StampOrder(WAIT_S)
         self.placed = 0
         self.skipped: Counter[str] = Counter()
@@ -377,6 +383,8 @@ class _Placer:
         while self.pending:
             head = self.pending[0]
             overdue = self.newest - head.stamp > WAIT_S or len(self.pending) > MAX_PENDING
+            if not overdue and self.poses.waits and self.newest_pose < head.stamp:
+                return  # nothing stamped after it yet: it cannot be placed
             scan = self._place(head, final=overdue)
             if scan is None and not overdue:
                 return  # wait for more transforms
