@@ -54,6 +54,7 @@ from mapserver.client.map_client import (
     MapRequestError,
     MapServerUnavailable,
 )
+from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import Scan
 from mapserver.store.recordings import Recording, open_recording
 
@@ -138,7 +139,7 @@ class ImportSummary:
         return text
 
 
-class ImportStopped(Exception):
+class ImportStopped(FleetmapError):
     """The server refused a batch in a way that sending on cannot help (its message)."""
 
 

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapserver.core.errors import FleetmapError
+
 
 @dataclass(frozen=True)
 class Transform:
@@ -109,7 +111,7 @@ class PlanarPose:
     mirrored: bool
 
 
-class TiltError(ValueError):
+class TiltError(FleetmapError, ValueError):
     """The sensor's scan plane is tilted past MAX_TILT; ``tilt`` [rad] says how far."""
 
     def __init__(self, tilt: float) -> None:
@@ -133,7 +135,7 @@ def planar_pose(transform: Transform) -> PlanarPose:
     return PlanarPose(x, y, math.atan2(r[1, 0], r[0, 0]), mirrored=up < 0)
 
 
-class TfLookupError(LookupError):
+class TfLookupError(FleetmapError, LookupError):
     """A transform cannot be found at a stamp. ``kind``: ``"no_chain"`` (the frames are
     not connected), ``"ahead"`` (a transform later than the stamp has not arrived yet:
     wait), ``"behind"`` (the stamp is older than the history kept). ``parent`` and
