@@ -7,6 +7,7 @@ import sys
 
 from fleet.bullet import SimulatorMissing, load_pybullet
 from mapserver.cli.args import CommandParser
+from mapserver.cli.import_cmd import add_import_parser
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_parser(sub)
     add_journal_parser(sub)
     add_export_parser(sub)
+    add_import_parser(sub)
     return parser
 
 

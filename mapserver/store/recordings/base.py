@@ -16,6 +16,7 @@ from pathlib import Path
 
 from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import Pose2D, Scan
+from mapserver.core.text import MAX_ID_CHARS
 
 
 class RecordingError(FleetmapError, ValueError):
@@ -60,6 +61,22 @@ class RecordingOptions:
         )
 
 
+RECORDING_SUFFIXES = (".gz", ".log", ".clf", ".gfs", ".bag", ".mcap", ".db3", ".jsonl")
+"""Suffixes ``unit_id_from_path`` drops from a file's name."""
+
+
+def unit_id_from_path(path: Path) -> str:
+    """A unit id from a recording's file or folder name (``intel-corrected.log.gz`` ->
+    ``intel-corrected``): its recording suffixes dropped, every character that is not
+    printable or is a separator other than the space made ``_``, cut to MAX_ID_CHARS
+    (the id rule of ``mapserver.core.text``); ``recording`` when nothing is left."""
+    name = Path(path).name
+    while (suffix := Path(name).suffix.lower()) in RECORDING_SUFFIXES and suffix:
+        name = name[: -len(suffix)]
+    clean = "".join(c if c.isprintable() else "_" for c in name).strip()
+    return clean[:MAX_ID_CHARS].strip() or "recording"
+
+
 class Recording(ABC):
     """One recording opened for reading; iterate it for its scans (again: from the start)."""
 
@@ -79,3 +96,13 @@ class Recording(ABC):
     @abstractmethod
     def describe(self) -> str:
         """One line for the user: the format, and what is read (topic, frames)."""
+
+    def unit_id(self) -> str:
+        """The unit id of the scans: ``options.unit_id``, else one from the file's name."""
+        return self.options.unit_id or unit_id_from_path(self.path)
+
+    def duration(self) -> float | None:
+        """[s] an estimate of the time from the first to the last scan (the recording's
+        own index, e.g. a bag's metadata), or None when it cannot tell without reading
+        it all. ``fleetmap import`` uses it to stamp a fast replay in the past."""
+        return None

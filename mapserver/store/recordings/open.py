@@ -6,12 +6,21 @@ from collections.abc import Callable
 from pathlib import Path
 
 from mapserver.store.recordings.base import Recording, RecordingError, RecordingOptions
+from mapserver.store.recordings.carmen_log import CarmenLogRecording, is_carmen_log
+from mapserver.store.recordings.ros_bag import RosBagRecording, is_bag_file, is_ros2_folder
 from mapserver.store.recordings.scan_jsonl import ScanFileRecording
 
 Reader = Callable[[Path, RecordingOptions], Recording]
 
 READERS: list[tuple[str, Callable[[Path], bool], Reader]] = [
     ("scan file (*.jsonl)", lambda p: p.is_file() and p.suffix == ".jsonl", ScanFileRecording),
+    ("ROS 2 bag (a folder with metadata.yaml)", is_ros2_folder, RosBagRecording),
+    ("ROS bag file (*.bag, *.db3, *.mcap)", is_bag_file, RosBagRecording),
+    (
+        "CARMEN log (*.log, *.clf, *.gfs, plain or gzip, or by content)",
+        is_carmen_log,
+        CarmenLogRecording,
+    ),
 ]
 """(what it reads, whether a path is one, the reader), tried in order."""
 
