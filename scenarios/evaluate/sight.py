@@ -54,7 +54,7 @@ def observe_scan(
     x, y, yaw, angle_min, angle_increment, range_min, range_max, ranges, margin,
     marks, hit_count, floor, hits, through,
 ):  # fmt: skip
-    """Count one scan's returns into ``hit_count`` (int64 per cell), mark its floor in
+    """Count one scan's returns into ``hit_count`` (int32 per cell), mark its floor in
     ``floor`` (bool per cell) and write the flat indices of the cells it sees through
     (see the module) into ``through``; returns (returns, cells seen through).
 
@@ -133,7 +133,7 @@ class SightKeeper:
             raise ValueError(f"the ghost margin must be whole cells >= 0, got {margin!r}")
         self.geometry = geometry
         self.margin = margin
-        self.hit_count = np.zeros(geometry.size, dtype=np.int64)
+        self.hit_count = np.zeros(geometry.size, dtype=np.int32)
         self.floor = np.zeros(geometry.size, dtype=bool)
         self.returns_total = 0
         self._marks = np.zeros(geometry.size, dtype=np.uint8)

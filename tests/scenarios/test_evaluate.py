@@ -149,7 +149,7 @@ def test_only_cells_a_return_hit_before_count_and_the_margin_spares_the_wall(tmp
 
 
 def test_a_cell_the_same_scan_hits_is_not_seen_through(tmp_path):
-    # Beam 0 passes column 3 on its way to the wall; beam 1 (0.001 rad on) hits it.
+    # Beam 0 passes column 3 on its way to the wall; beam 1 (0.01 rad on) hits it.
     path = tmp_path / "scans.jsonl"
     write_scan_file(path, [laser([WALL, PERSON], float(t)) for t in range(3)])
     evaluation = evaluate(open_recording(path), GRID, [AllOccupied()])
@@ -158,14 +158,15 @@ def test_a_cell_the_same_scan_hits_is_not_seen_through(tmp_path):
 
 
 def test_unknown_share_counts_only_the_floor_the_returns_saw(tmp_path):
-    # No-return beams (+inf) prove no floor: only the wall beam's 9 cells count.
+    # A wall beam along row 1, then a no-return beam along row 0. One pass leaves columns
+    # 0..7 of row 1 unknown; decay clears the no-return beam's first metre (columns 0, 1
+    # of row 0) weakly, unknown too, but that beam proves no floor: 8 of 9 cells, not 10
+    # of 11.
     path = tmp_path / "scans.jsonl"
     write_scan_file(path, [make_scan([WALL], x=0.5, y=1.5), make_scan([math.inf], x=0.5, y=0.5)])
-    evaluation = evaluate(open_recording(path), GRID, [AllOccupied()])
-    assert evaluation.verdicts[0].unknown_share == 0.0
-    result = verdicts(run(open_recording(path), policies=[Policy.BINARY]))
-    # binary clears the no-return beam's row too, but that row is not floor
-    assert result["binary"].unknown_share == 0.0 and result["binary"].structure_kept == 1.0
+    evaluation = run(open_recording(path), policies=[Policy.DECAY])
+    assert evaluation.verdicts[0].unknown_share == 8 / 9
+    assert evaluation.returns == 1 and evaluation.verdicts[0].structure_kept == 1.0
 
 
 def test_the_same_recording_gives_the_same_numbers(tmp_path):
