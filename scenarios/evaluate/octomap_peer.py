@@ -30,6 +30,7 @@ import importlib
 import numpy as np
 
 from mapserver.core.belief import CellState
+from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import BEAM_RETURN, Scan
 from mapserver.core.sensor_model import SensorModel, sigmoid
@@ -38,8 +39,9 @@ PEER_NAME = "octomap"
 INSTALL_HINT = "pip install 'fleetmap[bench]'"
 
 
-class PeerMissing(RuntimeError):
-    """The OctoMap peer was asked for but ``pyoctomap`` is not installed."""
+class PeerMissing(FleetmapError, ModuleNotFoundError):
+    """The OctoMap peer was asked for but ``pyoctomap`` is not installed; the message
+    names the extra to install."""
 
 
 def octomap_installed() -> bool:
