@@ -22,6 +22,7 @@ from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import DecayParams, Policy, SensorModel, logit
 from mapserver.store.recordings import open_recording
 from mapserver.store.scanfile import write_scan_file
+from scenarios.cli import evaluate as evaluate_cli
 from scenarios.cli.main import main
 from scenarios.evaluate.maps import FleetmapMap
 from scenarios.evaluate.octomap_peer import octomap_installed
@@ -243,6 +244,21 @@ def test_a_bad_recording_writes_nothing(tmp_path, capsys):
     assert main(["evaluate", str(missing), "--out", str(out), "--peer", "none"]) == 2
     assert f"fleetmap evaluate: error: {missing}: no such file or folder" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_failed_write_leaves_the_last_verdict_whole(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "verdict"
+    argv = ["evaluate", str(people_file(tmp_path)), *GRID_ARGS, "--out", str(out), "--peer", "none"]
+    assert main(argv) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def full_disk(evaluation, path):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(evaluate_cli, "write_picture", full_disk)
+    assert main([*argv, "--policies", "sticky"]) == 2
+    assert "fleetmap evaluate: error: --out " in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # no staging left
 
 
 def test_octomap_asked_for_but_not_installed_names_the_extra(tmp_path, capsys, monkeypatch):
