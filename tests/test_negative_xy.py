@@ -26,8 +26,10 @@ OPTIONS = list(xy_options(build_parser()))
 
 def test_the_commands_have_xy_options():
     names = {(" ".join(path), option) for path, option, _ in OPTIONS}
-    assert {("map build", "--origin"), ("plan", "--start"), ("plan", "--goal")} <= names
+    assert {("map build", "--origin"), ("evaluate", "--origin"), ("plan", "--start")} <= names
+    assert ("plan", "--goal") in names
     assert {("map build", "--fixed-sensor"), ("import", "--fixed-sensor")} <= names
+    assert ("evaluate", "--fixed-sensor") in names
 
 
 @pytest.mark.parametrize("path, option, kind", OPTIONS, ids=lambda v: str(v))
@@ -35,6 +37,7 @@ def test_negative_values_are_read_as_written(path, option, kind, tmp_path):
     value = "-12,-25" if kind is xy_pair else "-12,-25,-1.5"
     positional = {
         "map build": [str(tmp_path / "s.jsonl")],
+        "evaluate": [str(tmp_path / "s.jsonl")],
         "plan": [str(tmp_path / "m.yaml")],
         "import": [str(tmp_path / "s.jsonl"), "--server", "http://127.0.0.1:8700"],
     }

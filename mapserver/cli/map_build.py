@@ -28,8 +28,9 @@ def _range_or_none(text: str) -> float | None:
         raise argparse.ArgumentTypeError(f"expected metres or 'none', got {text!r}") from None
 
 
-def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
-    """The sensor-model, policy and decay flags shared by ``map build`` and the server."""
+def add_sensor_model_args(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
+    """The sensor-model and decay flags shared by ``map build``, ``evaluate`` and the
+    server; returns their group (``map build`` adds ``--policy`` to it)."""
     d, dd = SensorModel(), DecayParams()
     group = parser.add_argument_group("sensor model and policy")
     group.add_argument("--p-hit", type=float, default=d.p_hit, help="P(occupied | return)")
@@ -61,12 +62,6 @@ def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
         "(log-odds policies; docs/clearing.md)",
     )
     group.add_argument(
-        "--policy",
-        choices=[p.value for p in Policy],
-        default=Policy.DECAY.value,
-        help="how evidence accumulates and ages (default: decay)",
-    )
-    group.add_argument(
         "--half-life-occupied",
         type=float,
         default=dd.half_life_occupied,
@@ -78,9 +73,10 @@ def add_sensor_model_args(parser: argparse.ArgumentParser) -> None:
         default=dd.half_life_free,
         help="[s] fade half life of free evidence (decay policy)",
     )
+    return group
 
 
-def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, Policy, DecayParams]:
+def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, DecayParams]:
     """Build the validated model objects; ValueError names the bad flag's field."""
     model = SensorModel(
         p_hit=args.p_hit,
@@ -97,7 +93,22 @@ def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, Polic
     decay = DecayParams(
         half_life_occupied=args.half_life_occupied, half_life_free=args.half_life_free
     )
-    return model, Policy.parse(args.policy), decay
+    return model, decay
+
+
+def add_grid_args(parser: argparse.ArgumentParser) -> None:
+    """``--width``, ``--height``, ``--resolution``, ``--origin``: the grid, or (without
+    width and height) one sized from the data; read by ``grid_from_args``."""
+    parser.add_argument("--width", type=int, help="[cells] (default: sized from the data)")
+    parser.add_argument("--height", type=int, help="[cells] (default: sized from the data)")
+    parser.add_argument("--resolution", type=float, default=0.05, help="[m/cell]")
+    parser.add_argument(
+        "--origin",
+        type=xy_pair,
+        default=None,
+        help="X,Y [m] of cell (0,0)'s corner (default: 0,0 with --width/--height, "
+        "else sized from the data)",
+    )
 
 
 def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -115,20 +126,16 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument(
         "recording", type=Path, help="ROS 1 or 2 bag, CARMEN log or scan file (docs/recordings.md)"
     )
-    build.add_argument("--width", type=int, help="[cells] (default: sized from the data)")
-    build.add_argument("--height", type=int, help="[cells] (default: sized from the data)")
-    build.add_argument("--resolution", type=float, default=0.05, help="[m/cell]")
-    build.add_argument(
-        "--origin",
-        type=xy_pair,
-        default=None,
-        help="X,Y [m] of cell (0,0)'s corner (default: 0,0 with --width/--height, "
-        "else sized from the data)",
-    )
+    add_grid_args(build)
     build.add_argument("--out", type=Path, default=Path("."), help="output folder")
     build.add_argument("--json", action="store_true", help="print the figures as JSON last")
     add_recording_args(build)
-    add_sensor_model_args(build)
+    add_sensor_model_args(build).add_argument(
+        "--policy",
+        choices=[p.value for p in Policy],
+        default=Policy.DECAY.value,
+        help="how evidence accumulates and ages (default: decay)",
+    )
     build.set_defaults(handler=run_map_build)
 
 
@@ -148,7 +155,8 @@ def grid_from_args(args: argparse.Namespace, recording: Recording) -> GridGeomet
 def run_map_build(args: argparse.Namespace) -> int:
     """Open, validate, fuse, write; returns the exit code (2 for bad input: nothing written)."""
     try:
-        model, policy, decay = sensor_model_from_args(args)
+        model, decay = sensor_model_from_args(args)
+        policy = Policy.parse(args.policy)
         recording = open_recording(args.recording, recording_options_from_args(args))
         geometry = grid_from_args(args, recording)
         belief = BeliefGrid(geometry, model, policy, decay)

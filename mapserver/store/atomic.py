@@ -5,8 +5,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -40,3 +41,20 @@ def write_json(path: str | os.PathLike[str], value: Any) -> Path:
     with atomic_output(path) as f:
         f.write(text.encode() + b"\n")
     return Path(path)
+
+
+@contextlib.contextmanager
+def staged_files(out_dir: str | os.PathLike[str], names: Iterable[str]) -> Iterator[Path]:
+    """A temporary folder inside ``out_dir`` (created if missing) to write the files
+    ``names`` into; when the block ends without error each is moved over its namesake
+    in ``out_dir`` (``os.replace``, one rename each). On an error nothing in ``out_dir``
+    is replaced. The temporary folder is removed either way."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
+    try:
+        yield staging
+        for name in names:
+            os.replace(staging / name, out / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

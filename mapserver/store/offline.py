@@ -8,9 +8,6 @@ staged in a temporary folder beside them and moved into place only once all are 
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
@@ -21,6 +18,7 @@ import numpy as np
 from mapserver.core.belief import BeliefGrid, load_fusion_kernels
 from mapserver.core.occupancy import trinary_occupancy
 from mapserver.core.scan import Scan
+from mapserver.store.atomic import staged_files
 from mapserver.store.mapfiles import write_ros_map
 
 MAP_FILES = ("map.yaml", "map.pgm", "logodds.npy")
@@ -84,15 +82,8 @@ def write_map_outputs(belief: BeliefGrid, out_dir: Path | str, stamp: float | No
 
     Returns the YAML path. Either all three files are replaced or none is.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".map-build-", dir=out))
-    try:
+    with staged_files(out_dir, MAP_FILES) as staging:
         occupancy = trinary_occupancy(belief.states_at(stamp))
         write_ros_map(staging, occupancy, belief.geometry, image_name="map.pgm")
         np.save(staging / "logodds.npy", belief.log_odds_at(stamp).astype(np.float32))
-        for name in MAP_FILES:
-            os.replace(staging / name, out / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return out / "map.yaml"
+    return Path(out_dir) / "map.yaml"

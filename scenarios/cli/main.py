@@ -12,6 +12,7 @@ from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
 from mapserver.version import package_version
+from scenarios.cli.evaluate import add_evaluate_parser
 from scenarios.cli.export import add_export_parser
 from scenarios.cli.plan import add_plan_parser
 from scenarios.cli.run import add_run_parsers
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_journal_parser(sub)
     add_export_parser(sub)
     add_import_parser(sub)
+    add_evaluate_parser(sub)
     return parser
 
 

@@ -53,7 +53,8 @@ from mapserver.core import fusion_kernel
 from mapserver.core.belief import BeliefGrid, CellState
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel, sigmoid
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from scenarios.evaluate.octomap_peer import octree  # fleetmap's sensor model in OctoMap
 
 RESOLUTION = 0.05  # [m] cell / voxel edge
 WIDTH_M, HEIGHT_M = 100.0, 50.0  # [m] warehouse floor = grid extent
@@ -148,17 +149,6 @@ def profile(geometry: GridGeometry, model: SensorModel, scans: list[Scan], repea
             np.mean((boxes[:, 2] - boxes[:, 0] + 1) * (boxes[:, 3] - boxes[:, 1] + 1))
         ),
     }
-
-
-def octree(model: SensorModel) -> pyoctomap.OcTree:
-    """An OcTree at RESOLUTION with fleetmap's sensor model (probabilities, not log-odds)."""
-    tree = pyoctomap.OcTree(RESOLUTION)
-    tree.setProbHit(model.p_hit)
-    tree.setProbMiss(model.p_miss)
-    tree.setClampingThresMin(sigmoid(model.clamp_min))  # -5 log-odds = p 0.0067
-    tree.setClampingThresMax(sigmoid(model.clamp_max))  # +5 log-odds = p 0.9933
-    tree.setOccupancyThres(model.occupied_threshold)
-    return tree
 
 
 def point_cloud(scan: Scan) -> np.ndarray:
@@ -274,8 +264,8 @@ def run(
 
     subset = scans[:n_octomap]
     clouds = [point_cloud(scan) for scan in subset]  # numpy prep, untimed: OctoMap's favour
-    insert(octree(model), subset[:1], clouds[:1])  # warm-up, untimed
-    tree = octree(model)
+    insert(octree(model, RESOLUTION), subset[:1], clouds[:1])  # warm-up, untimed
+    tree = octree(model, RESOLUTION)
     theirs = insert(tree, subset, clouds)
 
     # Agreement needs identical scan sets: fuse OctoMap's subset afresh for each policy.
