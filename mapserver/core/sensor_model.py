@@ -125,6 +125,9 @@ class SensorModel:
         make a new cell structure, whose evidence then no longer fades: a unit driving
         past a rack face at 1.5 m/s hits its cells with 10 to 30 scans; a person walking
         through a cell, with 1 to 5 per unit that sees them (docs/dual.md).
+    confirm_after: [s] under ``dual``, a new cell hit while still occupied at least this
+        long after it was last observed is structure too: it stayed where it was. This
+        confirms what a slow recording (a scan every few seconds) sees in fewer scans.
     """
 
     p_hit: float = 0.7
@@ -140,6 +143,7 @@ class SensorModel:
     guard_glancing_faces: bool = True
     void_threshold: float = 0.05
     confirm_hits: int = 10
+    confirm_after: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("fill_between_beams", "guard_glancing_faces"):
@@ -152,6 +156,9 @@ class SensorModel:
         hits = self.confirm_hits
         if isinstance(hits, bool) or not isinstance(hits, int) or not 1 <= hits <= 253:
             raise FieldError("confirm_hits", hits, "must be a whole number of scans, 1 to 253")
+        after = self.confirm_after
+        if not (isinstance(after, int | float) and math.isfinite(after) and after > 0):
+            raise FieldError("confirm_after", after, "must be positive seconds")
         if not self.void_threshold < self.free_threshold:
             raise FieldError(
                 "void_threshold",

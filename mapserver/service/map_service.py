@@ -685,8 +685,8 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     One written before the fill between beams and the guard of glancing faces
     (docs/clearing.md) records no ``fill_between_beams`` or ``guard_glancing_faces``:
     false is filled in for each. One written before the ``dual`` policy records no
-    ``void_threshold`` or ``confirm_hits``, which only ``dual`` reads: today's defaults
-    are filled in.
+    ``void_threshold``, ``confirm_hits`` or ``confirm_after``, which only ``dual``
+    reads: today's defaults are filled in.
     """
     recorded = json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
     model = recorded.get("sensor_model")
@@ -696,7 +696,7 @@ def read_map_settings(data_dir: Path) -> dict[str, Any]:
     if isinstance(model, dict):
         model.setdefault("fill_between_beams", False)
         model.setdefault("guard_glancing_faces", False)
-        for name in ("void_threshold", "confirm_hits"):  # read by the dual policy alone
+        for name in ("void_threshold", "confirm_hits", "confirm_after"):  # dual's alone
             model.setdefault(name, getattr(SensorModel(), name))
     return recorded
 

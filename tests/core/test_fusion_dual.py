@@ -165,3 +165,35 @@ def test_state_arrays_round_trip_and_a_history_is_required():
     decay = BeliefGrid(GridGeometry(12, 1, 1.0), SensorModel(), Policy.DECAY)
     with pytest.raises(ValueError, match="the decay policy has no history array"):
         decay.load_state(stamp=3.0, **b.state_arrays())
+
+
+def test_a_slow_recording_confirms_what_stayed_where_it_was_after_a_gap():
+    b = row_grid()
+    fuse(b, [HIT], 0.0)  # a wall, one scan every 3 s (the Intel lab's log)
+    assert not b.structure_mask()[0, CELL]
+    fuse(b, [HIT], 1.0)  # within confirm_after (2 s) of the last look: still new
+    assert not b.structure_mask()[0, CELL]
+    fuse(b, [HIT], 4.0)  # hit again 3 s on, no pass between: it stayed
+    assert b.structure_mask()[0, CELL]
+    person = row_grid()
+    fuse(person, [HIT], 0.0)
+    fuse(person, [PASS], 1.0)  # seen through: gone
+    fuse(person, [HIT], 4.0)  # something there again: new, not confirmed
+    assert not person.structure_mask()[0, CELL]
+
+
+@pytest.mark.parametrize(
+    "field, value, reason",
+    [
+        ("void_threshold", 0.3, "must be below free_threshold (0.25)"),
+        ("void_threshold", 0.0, "must be a probability strictly between 0 and 1"),
+        ("confirm_hits", 0, "must be a whole number of scans, 1 to 253"),
+        ("confirm_hits", 2.5, "must be a whole number of scans, 1 to 253"),
+        ("confirm_after", -1.0, "must be positive seconds"),
+        ("confirm_after", float("inf"), "must be positive seconds"),
+    ],
+)
+def test_the_dual_settings_refuse_bad_values_naming_them(field, value, reason):
+    with pytest.raises(ValueError) as error:
+        SensorModel(**{field: value})
+    assert str(error.value).startswith(f"{field} {reason}")
