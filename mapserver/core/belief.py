@@ -161,7 +161,7 @@ class BeliefGrid:
             *(float(v) for v in (m.l_hit, m.l_miss, m.l_miss_no_return, m.l0, m.clamp_min)),
             float(m.clamp_max), int(POLICY_CODES[self.policy]),
             float(d.half_life_occupied), float(d.half_life_free), float(m.l_void),
-            int(m.confirm_hits), float(m.l_occupied), float(m.confirm_after),
+            int(m.confirm_hits), float(m.confirm_after),
         )  # fmt: skip
         self.stamp = -math.inf  # the latest stamp fused: the map's "now"
         self.scans_fused = 0

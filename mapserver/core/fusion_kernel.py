@@ -55,8 +55,8 @@ class KernelModel(NamedTuple):
     """The update rule: log-odds of a hit, a pass and a no-return pass, the prior and the
     clamp [log-odds]; the policy code (``POLICY_*``); decay half lives [s]; under
     ``POLICY_DUAL``, the log-odds below which a cell is void for good, the scans in a
-    row whose hits make a new cell structure, the occupied threshold [log-odds] and the
-    gap [s] after which a new cell hit again while occupied is structure."""
+    row whose hits make a new cell structure and the gap [s] after which a new cell hit
+    again with no pass since is structure."""
 
     l_hit: float
     l_miss: float
@@ -69,7 +69,6 @@ class KernelModel(NamedTuple):
     half_life_free: float
     l_void: float
     confirm_hits: int
-    l_occupied: float
     confirm_after: float
 
 
@@ -134,7 +133,7 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     log-odds ``value``: void for good once ``value < l_void``; else a new cell counts
     the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
     nothing, leaves it) and is structure at ``confirm_hits``, or at once when it
-    ``stayed`` (hit while still occupied at least ``confirm_after`` [s] after it was
+    ``stayed`` (hit again, with no pass since, at least ``confirm_after`` [s] after it was
     last observed: a recording that scans slowly); structure stays."""
     if value < l_void:
         return HISTORY_VOID
@@ -439,7 +438,7 @@ def apply_marks(buffers, box, grid, scan, model):
     - dual, by the cell's history (``dual_history``): a *new* cell as decay, but a pass
       of a return through it first drops what evidence of occupancy it held (seen
       through before it was confirmed, it held a transient); a *structure* cell (hit by
-      ``confirm_hits`` scans in a row, or hit again while occupied ``confirm_after``
+      ``confirm_hits`` scans in a row, or hit again with no pass since ``confirm_after``
       [s] after it was last observed) as decay without the fade; a *void* cell (its
       ``L`` fell below ``l_void`` once) by the binary rule: what appears in space seen
       free is transient and one pass clears it (docs/dual.md).
@@ -452,7 +451,7 @@ def apply_marks(buffers, box, grid, scan, model):
     log_odds, last_observed = buffers.log_odds, buffers.last_observed
     marks, fade_cache, history = buffers.marks, buffers.fade_cache, buffers.history
     l_void, confirm_hits = model.l_void, model.confirm_hits
-    l_occupied, confirm_after = model.l_occupied, model.confirm_after
+    confirm_after = model.confirm_after
     width, origin_x, origin_y, resolution = (
         grid.width, grid.origin_x, grid.origin_y, grid.resolution
     )  # fmt: skip
@@ -496,11 +495,9 @@ def apply_marks(buffers, box, grid, scan, model):
                     value = log_odds[idx]
                     t = last_observed[idx]
                     fading = policy == POLICY_DECAY or (dual and fades_by_history(history[idx]))
-                    # Under dual, a new cell hit while still occupied, a gap after it was
-                    # last observed, stayed where it was: structure (``dual_history``).
-                    stayed = (
-                        dual and fading and mark == MARK_HIT and stamp - t >= confirm_after
-                    )
+                    # Under dual, a new cell hit again with no pass since, a gap after it
+                    # was last observed, stayed where it was: structure (``dual_history``).
+                    stayed = dual and fading and mark == MARK_HIT and stamp - t >= confirm_after
                     if fading and t < stamp:  # False for NaN (never observed): no fade
                         if t != last_t:  # neighbours mostly share an earlier scan's
                             f_occupied, f_free = fade_factors(

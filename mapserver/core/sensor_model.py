@@ -125,8 +125,8 @@ class SensorModel:
         make a new cell structure, whose evidence then no longer fades: a unit driving
         past a rack face at 1.5 m/s hits its cells with 10 to 30 scans; a person walking
         through a cell, with 1 to 5 per unit that sees them (docs/dual.md).
-    confirm_after: [s] under ``dual``, a new cell hit while still occupied at least this
-        long after it was last observed is structure too: it stayed where it was. This
+    confirm_after: [s] under ``dual``, a new cell hit again, with no pass since, at least
+        this long after it was last observed is structure too: it stayed where it was. This
         confirms what a slow recording (a scan every few seconds) sees in fewer scans.
     """
 
