@@ -4,9 +4,10 @@ half-width of its 95 % Student's t interval (``scenarios.sweep.compare_stats``),
 saying whether the default policy (decay) differs from the baseline (binary) beyond noise.
 
 Cells: ``12.3 ± 4.5`` (mean ± half-width, the metric's unit); ``12.3 (n=1)`` when only one
-seed gave a value (no interval); ``-`` when none did; ``time_to_clear_s`` reads
-``never`` when no run of the policy cleared the object, and ``(k never)`` after the
-mean of the runs that did when k runs did not. The verdict row says, per metric,
+seed gave a value (no interval); ``-`` when none did; ``time_to_clear_s`` reads ``-``
+when no run removed anything, ``never`` when objects were removed and no run of the
+policy cleared one, and ``(k never)`` after the mean of the runs that did when k runs
+that removed something cleared nothing. The verdict row says, per metric,
 ``better``/``worse`` when decay's and binary's intervals do not overlap and ``~`` when
 they do (or a side has no interval).
 """
@@ -50,8 +51,11 @@ HEADLINE = (
     Column("phantom_freezes", "phantom freezes"),
     Column("phantom_freeze_seconds", "phantom s"),
     Column("true_block_freezes", "true blocks"),
+    Column("true_block_seconds", "true block s"),
     Column("stale_free_plans", "stale-free plans"),
+    Column("inscribed_plans", "inscribed plans"),
     Column("collisions", "collisions"),
+    Column("collision_seconds", "collision s"),
     Column("tasks_completed", "tasks", higher_is_better=True),
     Column("trips_per_unit_hour", "trips/unit-h", higher_is_better=True),
     Column("fleet_efficiency", "efficiency", higher_is_better=True, decimals=2),
@@ -108,15 +112,20 @@ def _values(runs: Sequence[Mapping[str, Any]], name: str) -> list[float]:
 
 
 def _cell(summary: Summary, column: Column, runs: Sequence[Mapping[str, Any]]) -> str:
+    never = _never(runs) if column.name == CLEAR_KEY else 0
     if summary.n == 0:
-        never = column.name == CLEAR_KEY and any(isinstance(m.get(CLEAR_KEY), list) for m in runs)
         return "never" if never else "-"
     mean = f"{summary.mean:.{column.decimals}f}"
     text = f"{mean} (n=1)" if summary.half_width is None else (
         f"{mean} ± {summary.half_width:.{column.decimals}f}")  # fmt: skip
-    if column.name == CLEAR_KEY and summary.n < len(runs):
-        text += f" ({len(runs) - summary.n} never)"
+    if never:
+        text += f" ({never} never)"
     return text
+
+
+def _never(runs: Sequence[Mapping[str, Any]]) -> int:
+    """The runs that removed something (a non-empty ``time_to_clear_s``) and cleared none."""
+    return sum(1 for m in runs if m.get(CLEAR_KEY) and metric_value(m, CLEAR_KEY) is None)
 
 
 def compare_markdown(
