@@ -30,6 +30,7 @@ __all__ = [
     "columns_for",
     "compare_markdown",
     "scenario_table",
+    "table_lines",
 ]
 
 CANDIDATE = "decay"  # the project's default policy
@@ -78,11 +79,6 @@ def scenario_table(
 ) -> str:
     """The Markdown table of one scenario: ``by_policy`` maps each policy (in row order)
     to its successful runs' metrics; ``seeds``: seeds asked for per policy."""
-    columns = columns_for([m for runs in by_policy.values() for m in runs])
-    stats = {
-        policy: [summarise(_values(runs, c.name)) for c in columns]
-        for policy, runs in by_policy.items()
-    }
     percent = f"{CONFIDENCE * 100:g} %"
     lines = [
         f"### {scenario}",
@@ -92,6 +88,18 @@ def scenario_table(
         f"no interval. Row '{CANDIDATE} vs {BASELINE}': better/worse where the intervals "
         "do not overlap, ~ where they do.",
         "",
+    ]
+    return "\n".join(lines + table_lines(by_policy))
+
+
+def table_lines(by_policy: Mapping[str, Sequence[Mapping[str, Any]]]) -> list[str]:
+    """The Markdown table alone, a line per row (``scenario_table``'s arguments)."""
+    columns = columns_for([m for runs in by_policy.values() for m in runs])
+    stats = {
+        policy: [summarise(_values(runs, c.name)) for c in columns]
+        for policy, runs in by_policy.items()
+    }
+    lines = [
         "| policy | runs | " + " | ".join(c.title for c in columns) + " |",
         "|---|---:|" + "---:|" * len(columns),
     ]
@@ -104,7 +112,7 @@ def scenario_table(
             for a, b, c in zip(stats[CANDIDATE], stats[BASELINE], columns, strict=True)
         ]
         lines.append(f"| {CANDIDATE} vs {BASELINE} | | " + " | ".join(marks) + " |")
-    return "\n".join(lines)
+    return lines
 
 
 def _values(runs: Sequence[Mapping[str, Any]], name: str) -> list[float]:
@@ -128,21 +136,28 @@ def _never(runs: Sequence[Mapping[str, Any]]) -> int:
     return sum(1 for m in runs if m.get(CLEAR_KEY) and metric_value(m, CLEAR_KEY) is None)
 
 
+def runs_by_policy(
+    results: Sequence[RunResult], scenario: str, policies: Sequence[str]
+) -> dict[str, list[dict[str, Any]]]:
+    """Each policy's successful runs' metrics of ``scenario`` (a file stem), in order."""
+    return {
+        policy: [
+            r.metrics
+            for r in results
+            if r.status == "ok" and r.run.name == scenario and r.run.policy == policy
+        ]
+        for policy in policies
+    }
+
+
 def compare_markdown(
     results: Sequence[RunResult], scenarios: Sequence[str], policies: Sequence[str], seeds: int
 ) -> str:
     """The whole ``compare.md``: a table per scenario (in order), then the failed runs."""
-    parts = []
-    for scenario in scenarios:
-        by_policy = {
-            policy: [
-                r.metrics
-                for r in results
-                if r.status == "ok" and r.run.name == scenario and r.run.policy == policy
-            ]
-            for policy in policies
-        }
-        parts.append(scenario_table(scenario, by_policy, seeds))
+    parts = [
+        scenario_table(scenario, runs_by_policy(results, scenario, policies), seeds)
+        for scenario in scenarios
+    ]
     failed = [r for r in results if r.status != "ok"]
     if failed:
         lines = [f"### Failed runs ({len(failed)}, left out of the tables)", ""]
