@@ -36,6 +36,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from mapserver.core.errors import FleetmapError
 from scenarios.sweep.compare import DEFAULT_POLICIES, parse_policies
 from scenarios.sweep.compare_table import runs_by_policy, table_lines
 from scenarios.sweep.parallel import RunResult
@@ -48,7 +49,7 @@ BEGIN = re.compile(r"^<!-- compare:begin (?P<name>[\w.-]+): (?P<args>.*?) -->$",
 END = "<!-- compare:end {name} -->"
 
 
-class ReadmeError(ValueError):
+class ReadmeError(FleetmapError, ValueError):
     """A README block that cannot be read: missing, unterminated or with bad arguments."""
 
 
