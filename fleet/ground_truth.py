@@ -14,19 +14,22 @@ So a planner run on it sees the world as the map would if it were perfect.
 ``GroundTruth`` follows the world's change log: after a change it re-rasterises only the
 cells the changed footprints cover and re-inflates around them (the result equals a full
 rebuild). Any past sim time ``at`` is answered from ``World.obstacles_at`` (one past
-state is cached).
+state is cached). ``states(start, end)`` walks the truth through a stretch of time: the
+state at ``start``, then one after each world change in it, each patched from the last
+as the current state is (a person walking is one change per sim step).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from fleet.layout import Obstacle
 from fleet.shapes import Bounds
-from fleet.world import World
+from fleet.world import Change, World
 from mapserver.core.belief import CellBox
 from mapserver.core.costvalues import FREE, LETHAL
 from mapserver.core.geometry import GridGeometry
@@ -77,6 +80,19 @@ def rasterise(
     return mask
 
 
+@dataclass(frozen=True)
+class TruthStep:
+    """The truth from ``time`` [s] on: the obstacles, the occupied mask and the costmap
+    (read-only), and the world ``changes`` stamped ``time`` that made it (empty for the
+    first state of a walk)."""
+
+    time: float
+    obstacles: Mapping[str, Obstacle]
+    mask: np.ndarray
+    costs: np.ndarray
+    changes: tuple[Change, ...] = ()
+
+
 class GroundTruth:
     """The true occupancy and costmap of ``world`` on ``geometry``, inflated with
     ``inflation`` (the map server's ``InflationParams``)."""
@@ -109,6 +125,25 @@ class GroundTruth:
         out[inside] = self.occupied(at)[rows[inside], cols[inside]]
         return out
 
+    def states(self, start: float, end: float) -> Iterator[TruthStep]:
+        """The truth at ``start`` [s], then after each world change stamped in (start,
+        end), one state per change time, in time order (module docstring)."""
+        obstacles = self.world.obstacles_at(start)
+        mask, costs = self._state(start)
+        yield TruthStep(start, dict(obstacles), mask, costs)
+        changes = self.world.changes_since(self.world.revision_at(start)) or []
+        pending = [c for c in changes if start < c.time < end]
+        while pending:
+            now = [c for c in pending if c.time == pending[0].time]
+            pending = pending[len(now) :]
+            for change in now:
+                if change.after is None:
+                    obstacles.pop(change.id, None)
+                else:
+                    obstacles[change.id] = change.after
+            mask, costs = self._patch(mask, costs, now, obstacles.values())
+            yield TruthStep(now[0].time, dict(obstacles), *self._read_only(mask, costs), tuple(now))
+
     # ------------------------------------------------------------------ internals
     def _state(self, at: float | None) -> tuple[np.ndarray, np.ndarray]:
         if at is None or self.world.revision_at(at) == self.world.revision:
@@ -140,20 +175,35 @@ class GroundTruth:
         if changes is None or len(changes) > MAX_INCREMENTAL_CHANGES:
             self._mask = rasterise(self.world.obstacles.values(), self.geometry)
             self._costs = self._inflate(self._mask)
-        else:  # copy on write: arrays handed out before stay as they were
-            self._mask, self._costs = self._mask.copy(), self._costs.copy()
-            touched = [
-                cells_of_bounds(self.geometry, obstacle.shape.bounds())
-                for change in changes
-                for obstacle in (change.before, change.after)
-                if obstacle is not None
-            ]
-            regions = merge_regions(touched)
-            obstacles = list(self.world.obstacles.values())
-            for region in regions:
-                self._mask[region.slices] = rasterise(obstacles, self.geometry, region)
-            for region in regions:
-                window = self.inflator.affected_box(region, self.geometry.shape)
-                self._costs[window.slices] = np.where(self._mask[window.slices], LETHAL, FREE)
-                self.inflator.apply(self._costs, window)
+        else:
+            self._mask, self._costs = self._patch(
+                self._mask, self._costs, changes, self.world.obstacles.values()
+            )
         self._revision = self.world.revision
+
+    def _patch(
+        self,
+        mask: np.ndarray,
+        costs: np.ndarray,
+        changes: Sequence[Change],
+        obstacles: Iterable[Obstacle],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``mask`` and ``costs`` after ``changes``, ``obstacles`` being the obstacles
+        after them: copies (arrays handed out before stay as they were), re-rasterised
+        where the changed footprints lie and re-inflated around them."""
+        mask, costs = mask.copy(), costs.copy()
+        touched = [
+            cells_of_bounds(self.geometry, obstacle.shape.bounds())
+            for change in changes
+            for obstacle in (change.before, change.after)
+            if obstacle is not None
+        ]
+        regions = merge_regions(touched)
+        obstacles = list(obstacles)
+        for region in regions:
+            mask[region.slices] = rasterise(obstacles, self.geometry, region)
+        for region in regions:
+            window = self.inflator.affected_box(region, self.geometry.shape)
+            costs[window.slices] = np.where(mask[window.slices], LETHAL, FREE)
+            self.inflator.apply(costs, window)
+        return mask, costs

@@ -15,7 +15,10 @@ the sim clock (``time`` [s], from 0), never the wall clock. One step of ``dt``:
    footprints, ``World.gap``, with the other units moving along their own steps),
    halted (bumper stop, path dropped) and reported in a ``CollisionEvent`` per object
    touched, with its ``cause`` (below); a unit put back may now be touched by another
-   (one following it closely), so the check repeats until no contact begins;
+   (one following it closely), so the check repeats until no contact begins; the
+   contacts every unit still holds at the step's end are reported too
+   (``StepResult.contacts``: a unit put back is just clear, one that something was
+   moved onto is not);
 5. every LiDAR whose next scan is due (slots ``k / rate_hz`` s for k = 0, 1, ...; slot 0
    is taken at the first step; at most one scan per step, so keep ``dt <= 1 / rate_hz``)
    scans from the unit's true pose; the scan carries the localiser's pose estimate and
@@ -108,13 +111,16 @@ class CollisionEvent:
 @dataclass(frozen=True)
 class StepResult:
     """What one step produced: the sim ``time`` [s] after it, the scans taken, the
-    collisions that began, and the acks the poster returned (this step's scans', or with
-    a pipelined poster the earlier steps' acks received meanwhile; empty without one)."""
+    collisions that began, the acks the poster returned (this step's scans', or with
+    a pipelined poster the earlier steps' acks received meanwhile; empty without one),
+    and the contacts held at the step's end: (unit id, other id) pairs, units in spec
+    order, others by id."""
 
     time: float
     scans: tuple[Scan, ...]
     collisions: tuple[CollisionEvent, ...]
     acks: tuple[ScanAck, ...]
+    contacts: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass
@@ -206,7 +212,8 @@ class FleetSim:
         scenes = self._scenes(due)
         scans = [self._scan(unit_id, unit, now, scenes[unit_id]) for unit_id, unit in due]
         acks = self.poster.post(scans) if self.poster is not None and scans else []
-        return StepResult(now, tuple(scans), tuple(collisions), tuple(acks))
+        held = tuple((uid, other) for uid, u in self._units.items() for other in sorted(u.touching))
+        return StepResult(now, tuple(scans), tuple(collisions), tuple(acks), held)
 
     # ------------------------------------------------------------------ internals
     def _start(self, seed: int) -> None:

@@ -3,10 +3,18 @@
 - A *freeze*: a unit with a task commands no motion for at least ``MIN_FREEZE_S`` (1 s)
   because no admissible path or lane was available. Standing still for any other reason
   (loading at a station, waiting for a granted lane to clear) is not a freeze.
-- A *phantom* freeze: during the freeze, the same planner finds a path on the
-  ground-truth costmap (the true geometry rasterised and inflated as the server does).
-  Otherwise the freeze is a *true block*. "The same planner" is the one that froze the
-  unit:
+- Its time is split into *segments* (``Segment``), each *phantom* or *true block*: a
+  moment of the freeze is phantom when the same planner finds a way on the ground-truth
+  costmap of that moment (the true geometry rasterised and inflated as the server does)
+  and true block when it does not (the unit's goal lies in an obstacle, or its way is
+  truly cut). Ground truth changes only with the world (a pod moved, a tote dropped, a
+  person's step), so the planner runs once at the freeze's start and once after each
+  world change during it (``TruthTimeline``), and each verdict holds until the next
+  change: the split is exact to the sim step. A unit frozen at a pod that is moved away
+  30 s later has 30 s of true block, then phantom seconds until it moves on (the map,
+  not the world, holds it from then on); one frozen at a map's ghost before a tote is
+  dropped on its way has phantom seconds, then true-block ones. "The same planner" is
+  the one that froze the unit:
 
   - a *path freeze* (the navigator found no admissible path): the grid planner, from
     the unit's position to its goal point (``classify``'s ``plan``);
@@ -18,7 +26,6 @@
     and from its head to the goal node. The grid planner would be the wrong judge: it
     goes round an obstacle that blocks a lane line in truth (a true block the map got
     right) and fails on a goal point off the lane that the router never plans to.
-- A *stale-free plan*: a plan whose path crosses a cell that is lethal in ground truth.
 
 ``FreezeDetector`` is fed one observation per unit per tick and reports each freeze once
 it ends (or when the run ends), with the reason and the blocking cells its unit reported.
@@ -27,13 +34,12 @@ it ends (or when the run ends), with the reason and the blocking cells its unit 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mapserver.core.costvalues import LETHAL
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 
@@ -41,6 +47,9 @@ if TYPE_CHECKING:
     from planner.lane_graph import LaneGraph
 
 MIN_FREEZE_S = 1.0  # [s] docs/files.md
+PHANTOM = "phantom"
+TRUE_BLOCK = "true_block"
+SEGMENT_KINDS = (PHANTOM, TRUE_BLOCK)
 
 Point = tuple[float, float]
 Lane = tuple[str, str]
@@ -80,9 +89,26 @@ class UnitObservation:
     lane_block: LaneBlock | None = None
 
 
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of a freeze, ``start`` to ``end`` [s], of one ``kind`` (``PHANTOM`` or
+    ``TRUE_BLOCK``), with its ``cause`` in words (what the planner found on ground truth,
+    and the world change that began the stretch, if one did)."""
+
+    start: float
+    end: float
+    kind: str
+    cause: str
+
+    @property
+    def duration(self) -> float:
+        """[s]"""
+        return self.end - self.start
+
+
 @dataclass
 class Freeze:
-    """A freeze of ``unit_id`` from ``start`` to ``end`` [s]; ``phantom`` once classified.
+    """A freeze of ``unit_id`` from ``start`` to ``end`` [s]; ``segments`` once classified.
 
     blocking_points, lanes: every blocking cell and blocked lane its observations named,
     in order, each once. lane_block: the first observation's (None: a path freeze; the
@@ -96,14 +122,18 @@ class Freeze:
     position: tuple[float, float] | None
     goal: tuple[float, float] | None
     blocking_points: list[tuple[float, float]] = field(default_factory=list)
-    phantom: bool | None = None
     lanes: list[Lane] = field(default_factory=list)
     lane_block: LaneBlock | None = None
+    segments: list[Segment] = field(default_factory=list)
 
     @property
     def duration(self) -> float:
         """[s]"""
         return self.end - self.start
+
+    def seconds(self, kind: str) -> float:
+        """[s] of the freeze classified ``kind`` (``PHANTOM`` or ``TRUE_BLOCK``)."""
+        return sum(s.duration for s in self.segments if s.kind == kind)
 
 
 class FreezeDetector:
@@ -168,42 +198,107 @@ LanePlan = Callable[[np.ndarray, LaneBlock, Point | None], bool]
 through on these costs (``TruthLanes``)?"""
 
 
+@dataclass(frozen=True)
+class TruthState:
+    """Ground truth from ``time`` [s] until the next state: its ``costs`` (uint8 Nav2), the
+    world change that made it (``change``, e.g. ``"pod-9 moved"``; ``""`` for the state a
+    freeze starts in) and ``where(x, y)``: what covers a point [m] then, in words
+    (``"lies in tote-1"``; None: open floor, or not known)."""
+
+    time: float
+    costs: np.ndarray
+    change: str = ""
+    where: Callable[[float, float], str | None] = lambda x, y: None
+
+
+TruthTimeline = Callable[[float, float], Iterable[TruthState]]
+"""``timeline(start, end)``: the truth at ``start`` [s], then one state after each world
+change stamped in (start, end), in time order (``GroundTruth.states`` in the simulator)."""
+
+
+def split(start: float, end: float, verdicts: Iterable[tuple[float, str, str]]) -> list[Segment]:
+    """The segments of a freeze from ``start`` to ``end`` [s], given ``verdicts``: (time
+    [s], kind, cause) in time order, the first at ``start``, each holding until the next.
+    Consecutive verdicts of one kind and cause make one segment (the first one's cause);
+    verdicts at or after ``end`` are dropped."""
+    segments: list[Segment] = []
+    for time, kind, cause in verdicts:
+        if kind not in SEGMENT_KINDS:
+            raise ValueError(f"kind must be one of {SEGMENT_KINDS}, got {kind!r}")
+        if time >= end:
+            break
+        last = segments[-1] if segments else None
+        if last is not None and last.kind == kind and _base(last.cause) == _base(cause):
+            continue
+        if last is not None:
+            segments[-1] = Segment(last.start, time, last.kind, last.cause)
+        segments.append(Segment(time, end, kind, cause))
+    if segments and segments[0].start != start:
+        raise ValueError(f"the first verdict must be at the start {start!r}, got {segments[0]}")
+    return segments
+
+
+def _base(cause: str) -> str:
+    """A cause without the world change that began its segment."""
+    return cause.split(" (", 1)[0]
+
+
 def classify(
     freeze: Freeze,
-    truth_costs_at: Callable[[float], np.ndarray],
+    timeline: TruthTimeline,
     plan: Callable[[np.ndarray, tuple[float, float], tuple[float, float]], bool],
-    samples: int = 3,
     lane_plan: LanePlan | None = None,
-) -> bool:
-    """Phantom or not: does the planner that froze the unit succeed on the ground truth at
-    some moment of the freeze (``samples`` evenly spaced stamps, start and end included)?
+) -> list[Segment]:
+    """Split ``freeze`` into phantom and true-block segments (module docstring): run the
+    planner that froze the unit on each state of ``timeline(start, end)``. Sets and
+    returns ``freeze.segments``.
 
     A path freeze: ``plan(truth_costs, position, goal)``. A lane freeze (``lane_block``
-    set): ``lane_plan(truth_costs, lane_block, position)``, required for one.
+    set): ``lane_plan(truth_costs, lane_block, position)``, required for one. A freeze
+    without a known position or goal is a true block throughout (never phantom).
     """
     block = freeze.lane_block
+    if block is not None and lane_plan is None:
+        raise ValueError(
+            f"freeze of {freeze.unit_id} at {freeze.start} s is a lane freeze: "
+            "classify it with lane_plan (TruthLanes), not the grid planner"
+        )
+    if block is None and (freeze.position is None or freeze.goal is None):
+        unknown = [(freeze.start, TRUE_BLOCK, "its position or goal is not known")]
+        freeze.segments = split(freeze.start, freeze.end, unknown)
+        return freeze.segments
+    verdicts = []
+    for state in timeline(freeze.start, freeze.end):
+        kind, cause = _verdict(freeze, state, plan, lane_plan)
+        when = f" ({state.change} at {state.time:g} s)" if state.change else ""
+        verdicts.append((state.time, kind, cause + when))
+    freeze.segments = split(freeze.start, freeze.end, verdicts)
+    return freeze.segments
+
+
+def _verdict(
+    freeze: Freeze, state: TruthState, plan, lane_plan: LanePlan | None
+) -> tuple[str, str]:
+    """(kind, cause) of the freeze's moment in ``state``."""
+    block = freeze.lane_block
     if block is not None:
-        if lane_plan is None:
-            raise ValueError(
-                f"freeze of {freeze.unit_id} at {freeze.start} s is a lane freeze: "
-                "classify it with lane_plan (TruthLanes), not the grid planner"
-            )
+        assert lane_plan is not None
+        if lane_plan(state.costs, block, freeze.position):
+            return PHANTOM, "ground truth has a lane route"
+        if len(block.origin) == 2:
+            return TRUE_BLOCK, "its lane is truly blocked ahead, or no lane route on from it"
+        return TRUE_BLOCK, "no lane route on ground truth"
+    assert freeze.position is not None and freeze.goal is not None
+    if plan(state.costs, freeze.position, freeze.goal):
+        return PHANTOM, "ground truth has a path"
+    return TRUE_BLOCK, _goal_cause(state, freeze.goal)
 
-        def through(costs: np.ndarray) -> bool:
-            return lane_plan(costs, block, freeze.position)
 
-    elif freeze.position is None or freeze.goal is None:
-        freeze.phantom = False
-        return False
-    else:
-        start, goal = freeze.position, freeze.goal
-
-        def through(costs: np.ndarray) -> bool:
-            return plan(costs, start, goal)
-
-    stamps = np.linspace(freeze.start, freeze.end, max(samples, 2))
-    freeze.phantom = any(through(truth_costs_at(t)) for t in stamps)
-    return freeze.phantom
+def _goal_cause(state: TruthState, goal: Point) -> str:
+    """Why ground truth has no path: the goal's place, when the truth says what is there
+    (``TruthState.where``), else no path."""
+    where = state.where(*goal)
+    return f"its goal {where}" if where else "no path on ground truth"
 
 
 class TruthLanes:
@@ -261,16 +356,3 @@ class TruthLanes:
         (tx, ty), (hx, hy) = self.graph.position(tail), self.graph.position(head)
         s = ((position[0] - tx) * (hx - tx) + (position[1] - ty) * (hy - ty)) / d["length"]
         return s > far
-
-
-def stale_free_cells(
-    path: Sequence[tuple[float, float]], truth_costs: np.ndarray, geometry: GridGeometry
-) -> list[tuple[float, float]]:
-    """The points of ``path`` [m] that lie on cells LETHAL in ground truth (empty: the plan
-    is not stale-free)."""
-    if not path:
-        return []
-    cols, rows, inside = geometry.points_to_cells(np.asarray(path, dtype=np.float64))
-    hits = np.zeros(len(path), dtype=bool)
-    hits[inside] = truth_costs[rows[inside], cols[inside]] == LETHAL
-    return [tuple(p) for p, hit in zip(path, hits.tolist(), strict=True) if hit]

@@ -51,35 +51,52 @@ def _cost(v):
     return _BLOCKED if v == LETHAL or v == INSCRIBED else np.int64(v)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def line_start(c0, r0, c1, r1):
+    """The supercover of the segment between the centres of cells (c0, r0) and (c1, r1):
+    every cell it passes through, both cells beside a corner it crosses, by Amanatides
+    and Woo's traversal (*A Fast Voxel Traversal Algorithm*, Eurographics 1987) in exact
+    integer arithmetic. Returns the walk's state, at cell (c0, r0); ``line_step`` moves
+    it on while ``line_more``."""
+    return (c0, r0, 0, 0, abs(c1 - c0), abs(r1 - r0), 1 if c1 > c0 else -1,
+            1 if r1 > r0 else -1)  # fmt: skip
+
+
+@njit(cache=True, nogil=True, inline="always")
+def line_more(state):
+    """Does the walk have a cell after its current one?"""
+    _, _, kc, kr, dc, dr, _, _ = state
+    return kc < dc or kr < dr
+
+
+@njit(cache=True, nogil=True, inline="always")
+def line_step(state):
+    """(the state at the next cell, corner): corner True when the segment went through
+    a corner on the way, so that both side cells, (c + sc, r) and (c, r + sr) of the
+    old cell (c, r), touch it too."""
+    c, r, kc, kr, dc, dr, sc, sr = state
+    # next boundary along the segment at t = (2k + 1) / (2 d): compare across axes
+    col_t = (2 * kc + 1) * dr if kc < dc else -1
+    row_t = (2 * kr + 1) * dc if kr < dr else -1
+    if row_t < 0 or (0 <= col_t < row_t):
+        return (c + sc, r, kc + 1, kr, dc, dr, sc, sr), False
+    if col_t < 0 or row_t < col_t:
+        return (c, r + sr, kc, kr + 1, dc, dr, sc, sr), False
+    return (c + sc, r + sr, kc + 1, kr + 1, dc, dr, sc, sr), True
+
+
 @njit(cache=True, nogil=True)
 def _line_cost(costs, c0, r0, c1, r1):
     """The highest cost of every cell the segment between the centres of (c0, r0) and
-    (c1, r1) passes through (a supercover: both cells beside a corner it crosses), by
-    Amanatides and Woo's traversal (*A Fast Voxel Traversal Algorithm*, Eurographics
-    1987) in exact integer arithmetic."""
-    dc, dr = abs(c1 - c0), abs(r1 - r0)
-    sc = 1 if c1 > c0 else -1
-    sr = 1 if r1 > r0 else -1
-    c, r = c0, r0
-    kc = kr = 0  # column and row boundaries crossed so far
-    worst = _cost(costs[r, c])
-    while kc < dc or kr < dr:
-        # next boundary along the segment at t = (2k + 1) / (2 d): compare across axes
-        col_t = (2 * kc + 1) * dr if kc < dc else -1
-        row_t = (2 * kr + 1) * dc if kr < dr else -1
-        if row_t < 0 or (0 <= col_t < row_t):
-            c += sc
-            kc += 1
-        elif col_t < 0 or row_t < col_t:
-            r += sr
-            kr += 1
-        else:  # through a corner: both side cells touch the segment
+    (c1, r1) passes through (``line_start``)."""
+    state = line_start(c0, r0, c1, r1)
+    worst = _cost(costs[r0, c0])
+    while line_more(state):
+        c, r, _, _, _, _, sc, sr = state
+        state, corner = line_step(state)
+        if corner:
             worst = max(worst, _cost(costs[r, c + sc]), _cost(costs[r + sr, c]))
-            c += sc
-            r += sr
-            kc += 1
-            kr += 1
-        worst = max(worst, _cost(costs[r, c]))
+        worst = max(worst, _cost(costs[state[1], state[0]]))
     return worst
 
 

@@ -18,7 +18,7 @@ topic                    schema                     one message per
 ``/tf``                  foxglove.FrameTransforms   unit-sample stamp: ``map`` ->
                                                     ``<id>/base_link`` per unit
 ``/log``                 foxglove.Log               event, freeze, recovery action,
-                                                    stale-free plan, collision
+                                                    unsafe plan, collision incident
 ``/metrics``             fleetmap.RunMetrics        counters sample (``metrics_channel``)
 ``/metrics/map_truth``   fleetmap.MapTruth          map read (``map_truth_channel``)
 =======================  =========================  ======================================

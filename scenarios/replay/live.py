@@ -45,7 +45,7 @@ from scenarios.replay.channels import (
     schema_text,
     unit_items,
 )
-from scenarios.replay.log import collision_line, event_line, stale_plan_line
+from scenarios.replay.log import event_line, incident_line, unsafe_plan_line
 
 if TYPE_CHECKING:
     from scenarios.run.episode import Episode
@@ -110,8 +110,12 @@ class FoxgloveLive:
         """Send what the record gained since the last step (module docstring)."""
         record = episode.record
         lines = [event_line(e) for e in self._new(record.events, "events")]
-        lines += [stale_plan_line(p) for p in self._new(record.plans, "stale") if p.stale_free]
-        lines += [collision_line(c) for c in self._new(record.collisions, "collisions")]
+        lines += [
+            unsafe_plan_line(p)
+            for p in self._new(record.plans, "unsafe")
+            if p.stale_free or p.inscribed
+        ]
+        lines += [incident_line(i) for i in self._new(record.incidents, "incidents")]
         self._resend_latched()
         streams: tuple[tuple[bool, Iterable[Item]], ...] = (  # (latched, items)
             (True, self._objects.items(self._new(record.objects, "objects"))),

@@ -18,9 +18,9 @@ with the same seed are identical step for step. Each ``step``:
    (``every_s``) and reads what the step did (``StepReport``); they record, score and
    publish, and never change the fleet.
 
-``finish()`` classifies every freeze phantom or true (planning on the ground-truth
-costmap during it) and assembles the metrics of docs/files.md into the
-``RunRecord``.
+``finish()`` splits every freeze into phantom and true-block segments (planning on the
+ground-truth costmap at its start and after each world change during it) and assembles
+the metrics of docs/files.md into the ``RunRecord``.
 """
 
 from __future__ import annotations
@@ -49,9 +49,11 @@ from scenarios.run.fleet_filter import FleetMemberFilter
 from scenarios.run.observers import Observer, Schedule, StandardObservers
 from scenarios.run.record import EventRecord, RunRecord
 from scenarios.score.clearing import ClearingTracker
-from scenarios.score.collisions_json import collision_counts
+from scenarios.score.counts import freeze_counts, plan_counts
 from scenarios.score.evidence import freeze_records
+from scenarios.score.incidents import collision_counts
 from scenarios.score.map_truth import summary as map_truth_summary
+from scenarios.score.truth_timeline import truth_timeline
 from scenarios.spec.scenario import Scenario
 from scenarios.spec.tasks import Task
 
@@ -330,10 +332,11 @@ class Episode:
             return planner.plan(costs, start, goal).found
 
         lanes = TruthLanes(self.graph, self.geometry)  # lane freezes: the router on truth
+        timeline = truth_timeline(self.truth)
         watch = self.standard.freezes
         watch.detector.finish(now)
         for freeze in watch.detector.freezes:  # every freeze, not only those still open
-            classify(freeze, self.truth.costmap, plan, lane_plan=lanes)
+            classify(freeze, timeline, plan, lane_plan=lanes)
         self.record.freezes = freeze_records(
             watch.detector.freezes, self.agents, self.coordinator, self.truth,
             watch.evidence, self.standard.scans.index,
@@ -347,7 +350,6 @@ class Episode:
 
     def _metrics(self, wall_seconds: float) -> dict[str, object]:
         freezes = self.record.freezes
-        phantom = [f for f in freezes if f.phantom]
         replans = sum(
             1 for a in self.agents.values() for act in a.navigator.actions
             if act.action in ("replan", "reroute")
@@ -361,11 +363,9 @@ class Episode:
             "sim_seconds": round(self.sim.time, 6),
             "wall_seconds": round(wall_seconds, 3),
             "tasks_completed": len(throughput.trips),
-            "phantom_freezes": len(phantom),
-            "phantom_freeze_seconds": round(sum(f.duration for f in phantom), 3),
-            "true_block_freezes": len(freezes) - len(phantom),
-            "stale_free_plans": sum(1 for p in self.record.plans if p.stale_free),
-            **collision_counts(self.record),  # collisions (the fleet's), scenario_collisions
+            **freeze_counts(freezes),
+            **plan_counts(self.record.plans),
+            **collision_counts(self.record.incidents),  # incidents (fleet's, scenario's)
             "time_to_clear_s": [None if t is None else round(t, 3) for t in self.clearing.times()],
             "map_truth": map_truth_summary(self.record.map_truth),
             "replans": replans,

@@ -5,8 +5,9 @@ episode and its last ``StepReport`` (``scenarios.run.episode``); it never change
 ``finish`` runs once at the end, before the episode scores the run.
 
 The standard set (``StandardObservers``): the replay's scans (every step, sampled per
-unit), plans checked against ground truth (stale-free plans), the freeze detector and
-the evidence of blocking cells, throughput, time to clear and the map against truth
+unit), plans checked against ground truth (stale-free and inscribed plans), collision
+incidents with what the map held where the unit touched, the freeze detector and the
+evidence of blocking cells, throughput, time to clear and the map against truth
 (both at every map read), the run's counters (every map read and at the end), unit
 poses for the replay and the live viewer, costmap snapshots and the world's objects
 (``replay_objects``).
@@ -21,11 +22,20 @@ import numpy as np
 
 from mapserver.api.schemas import MAX_REASON_CHARS
 from mapserver.client import UnitState
-from planner.freeze import FreezeDetector, UnitObservation, stale_free_cells
+from planner.freeze import FreezeDetector, UnitObservation
+from planner.plan_safety import plan_safety
 from scenarios.replay.objects import ObjectRecorder
 from scenarios.run.agents import activity
 from scenarios.run.record import CountersSample, GridSample, PlanSample, ScanSample, UnitSample
-from scenarios.score.collisions_json import collision_counts
+from scenarios.score.counts import plan_counts
+from scenarios.score.incidents import (
+    ContactCell,
+    IncidentTracker,
+    PlanContext,
+    collision_counts,
+    contact_cells,
+    cost_class,
+)
 from scenarios.score.map_truth import footprints, measure, reachable_floor
 from scenarios.score.throughput import ThroughputTracker
 
@@ -93,14 +103,75 @@ class ScanRecorder(_Observer):
 
 
 class PlanChecker(_Observer):
-    """Every path sent to a drive, with the cells of it lethal in ground truth
-    (``record.plans``: stale-free plans)."""
+    """Every path sent to a drive, with the cells its legs cross that are lethal or
+    inscribed in ground truth (``record.plans``: stale-free and inscribed plans,
+    ``planner.plan_safety``)."""
+
+    def __init__(self, episode: Episode) -> None:
+        self.radius = {s.unit_id: s.drive.radius for s in episode.setup.unit_specs()}
 
     def observe(self, episode: Episode) -> None:
         now = episode.report.now
         for uid, path in episode.report.new_paths:
-            stale = stale_free_cells(path, episode.truth.costmap(now), episode.geometry)
-            episode.record.plans.append(PlanSample(now, uid, tuple(path), tuple(stale)))
+            truth = episode.truth.costmap(now)
+            safety = plan_safety(path, truth, episode.geometry, self.radius[uid])
+            episode.record.plans.append(
+                PlanSample(now, uid, tuple(path), safety.lethal, safety.inscribed)
+            )
+
+
+class CollisionWatch(_Observer):
+    """Collision incidents (``scenarios.score.incidents``, ``record.incidents``), every
+    step: the contacts the step began and held, each new incident with the plan its unit
+    was driving (the costmap it planned on, kept per unit from the step the path was
+    sent) and its contact cells as that map and the truth then held them."""
+
+    def __init__(self, episode: Episode) -> None:
+        self.radius = {s.unit_id: s.drive.radius for s in episode.setup.unit_specs()}
+        self.tracker = IncidentTracker(incidents=episode.record.incidents)
+        self._planned: dict[str, tuple[float, object]] = {}  # unit -> (stamp, Grid)
+
+    def observe(self, episode: Episode) -> None:
+        report = episode.report
+        sim = report.sim
+        self.tracker.observe(
+            report.now, sim.collisions, sim.contacts, lambda e: self._context(episode, e)
+        )
+        for uid, _ in report.new_paths:  # after: a contact came before this step's plans
+            self._planned[uid] = (report.now, episode.costs)
+
+    def _context(self, episode: Episode, event) -> PlanContext | None:
+        planned = self._planned.get(event.unit_id)
+        if planned is None:
+            return None
+        stamp, grid = planned
+        cells = contact_cells(
+            episode.geometry, event.x, event.y, self.radius[event.unit_id],
+            self._distance(episode, event.other_id),
+        )  # fmt: skip
+        truth = episode.truth.costmap(stamp)
+        geometry = episode.geometry
+        return PlanContext(
+            stamp,
+            grid.version,
+            tuple(
+                ContactCell(
+                    *geometry.cell_to_world(c, r),
+                    cost_class(grid.data[r, c]),
+                    cost_class(truth[r, c]),
+                )  # fmt: skip
+                for c, r in cells
+            ),
+        )
+
+    def _distance(self, episode: Episode, other_id: str):
+        """[m] from points to the touched thing now: an obstacle's footprint, or a unit's."""
+        obstacle = episode.world.obstacles.get(other_id)
+        if obstacle is not None:
+            return obstacle.shape.distance
+        ox, oy = episode.report.positions[other_id]
+        radius = self.radius[other_id]
+        return lambda xs, ys: np.maximum(np.hypot(xs - ox, ys - oy) - radius, 0.0)
 
 
 class FreezeWatch(_Observer):
@@ -203,8 +274,9 @@ class MapTruthWatch(_Observer):
 class CountersRecorder(_Observer):
     """The run's counters (``record.counters``, the replay's ``/metrics``) every ``every_s``
     [s] and once more at the end, so the last sample holds the numbers of ``metrics.json``:
-    trips done (``throughput``'s), units frozen at the step, stale-free plans, collisions
-    (``collision_counts``) and scenario events so far."""
+    trips done (``throughput``'s), units frozen at the step, stale-free and inscribed
+    plans (``plan_counts``), collision incidents (``collision_counts``) and scenario
+    events so far."""
 
     def __init__(self, throughput: Throughput, every_s: float) -> None:
         self.throughput = throughput
@@ -212,16 +284,18 @@ class CountersRecorder(_Observer):
 
     def observe(self, episode: Episode) -> None:
         record = episode.record
-        collisions = collision_counts(record)
+        collisions = collision_counts(record.incidents)
+        plans = plan_counts(record.plans)
         record.counters.append(
             CountersSample(
                 episode.report.now,
                 len(self.throughput.tracker.trips),
                 len(episode.report.frozen),
-                sum(1 for p in record.plans if p.stale_free),
-                collisions["collisions"],
-                collisions["scenario_collisions"],
+                plans["stale_free_plans"],
+                int(collisions["collisions"]),
+                int(collisions["scenario_collisions"]),
                 len(episode.events),
+                plans["inscribed_plans"],
             )
         )
 
@@ -291,6 +365,7 @@ class StandardObservers:
 
     scans: ScanRecorder
     plans: PlanChecker
+    collisions: CollisionWatch
     freezes: FreezeWatch
     throughput: Throughput
     clearing: ClearingWatch
@@ -307,7 +382,8 @@ class StandardObservers:
         throughput = Throughput(episode)
         return cls(
             scans=ScanRecorder(opts.record_scans_s),
-            plans=PlanChecker(),
+            plans=PlanChecker(episode),
+            collisions=CollisionWatch(episode),
             freezes=FreezeWatch(),
             throughput=throughput,
             clearing=ClearingWatch(opts.map_read_s),
@@ -322,7 +398,8 @@ class StandardObservers:
     def all(self) -> tuple[Observer, ...]:
         """In the order they run after a step."""
         return (
-            self.scans, self.plans, self.freezes, self.throughput, self.clearing,
+            self.scans, self.plans, self.collisions, self.freezes, self.throughput,
+            self.clearing,
             self.map_truth, self.counters, self.units, self.publisher, self.grids,
             self.objects,
         )  # fmt: skip

@@ -14,7 +14,9 @@ import numpy as np
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import PoseStd
+from planner.freeze import PHANTOM, TRUE_BLOCK, Segment
 from scenarios.replay.fused import FusedScans
+from scenarios.score.incidents import CollisionIncident
 
 if TYPE_CHECKING:
     from fleet.sim import CollisionEvent  # imports pybullet
@@ -36,17 +38,26 @@ class UnitSample:
 
 @dataclass(frozen=True)
 class PlanSample:
-    """A plan a unit made: its path [m], and the path points lying on cells lethal in
-    ground truth at that time (non-empty: a stale-free plan)."""
+    """A plan a unit made: its path [m], and the centres [m] of the cells its legs cross
+    that were lethal (``stale_cells``) and inscribed (``inscribed_cells``) in ground
+    truth at that time (``planner.plan_safety``)."""
 
     stamp: float
     unit_id: str
     path: tuple[tuple[float, float], ...]
     stale_cells: tuple[tuple[float, float], ...] = ()
+    inscribed_cells: tuple[tuple[float, float], ...] = ()
 
     @property
     def stale_free(self) -> bool:
+        """Does it drive through a truly lethal cell?"""
         return bool(self.stale_cells)
+
+    @property
+    def inscribed(self) -> bool:
+        """Does it put the unit's body on an obstacle (a truly inscribed cell) without
+        crossing a lethal one?"""
+        return bool(self.inscribed_cells) and not self.stale_cells
 
 
 @dataclass(frozen=True)
@@ -113,7 +124,7 @@ class MapTruthSample:
 class CountersSample:
     """The run's counters at ``stamp`` [s], as they stood then (the replay's ``/metrics``):
     trips done, units frozen now, stale-free plans, the fleet's and the scenario's
-    collisions and the scenario events so far (counts)."""
+    collision incidents, the scenario events and the inscribed plans so far (counts)."""
 
     stamp: float
     tasks_completed: int
@@ -122,6 +133,7 @@ class CountersSample:
     collisions: int
     scenario_collisions: int
     events: int
+    inscribed_plans: int = 0
 
 
 @dataclass(frozen=True)
@@ -167,21 +179,38 @@ class RecoveryStep:
 
 @dataclass(frozen=True)
 class FreezeRecord:
-    """A freeze (docs/files.md): unit, start [s], duration [s], phantom or true block, the
-    blocking cells with their evidence, the recovery actions taken meanwhile, and for a
-    lane freeze the blocked lanes (node-id pairs, sorted) that held the unit
-    (``scenarios.score.lane_evidence``; empty for a path freeze)."""
+    """A freeze (docs/files.md): unit, start [s], duration [s], its phantom and true-block
+    segments (``planner.freeze.Segment``, in time order), the blocking cells with their
+    evidence, the recovery actions taken meanwhile, and for a lane freeze the blocked
+    lanes (node-id pairs, sorted) that held the unit (``scenarios.score.lane_evidence``;
+    empty for a path freeze)."""
 
     unit_id: str
     start: float
     duration: float
-    phantom: bool
+    segments: tuple[Segment, ...]
     reason: str
     x: float
     y: float
     blocking: tuple[BlockingCell, ...]
     recovery: tuple[RecoveryStep, ...]
     lanes: tuple[tuple[str, str], ...] = ()
+
+    def seconds(self, kind: str, until: float | None = None) -> float:
+        """[s] of the freeze's segments of ``kind`` (``PHANTOM``, ``TRUE_BLOCK``), up to
+        sim time ``until`` [s] (None: all)."""
+        end = float("inf") if until is None else until
+        return sum(max(0.0, min(s.end, end) - s.start) for s in self.segments if s.kind == kind)
+
+    @property
+    def phantom(self) -> bool:
+        """Has it phantom seconds (the map, not the world, held the unit for a while)?"""
+        return any(s.kind == PHANTOM for s in self.segments)
+
+    @property
+    def true_block(self) -> bool:
+        """Has it true-block seconds (ground truth blocked the unit's way for a while)?"""
+        return any(s.kind == TRUE_BLOCK for s in self.segments)
 
 
 @dataclass(frozen=True)
@@ -205,8 +234,10 @@ class TripRecord:
 @dataclass
 class RunRecord:
     """A whole run: identity, the map's geometry, the units' body (radius, height [m];
-    None: the fleet's default ``DriveLimits``), the streams above, and what the run's own
-    map server fused (``fused``; None for a run against an outside server)."""
+    None: the fleet's default ``DriveLimits``), the streams above (``collisions``: every
+    contact begun; ``incidents``: them grouped, ``scenarios.score.incidents``), and what
+    the run's own map server fused (``fused``; None for a run against an outside
+    server)."""
 
     scenario: str
     policy: str
@@ -223,6 +254,7 @@ class RunRecord:
     freezes: list[FreezeRecord] = field(default_factory=list)
     trips: list[TripRecord] = field(default_factory=list)
     collisions: list[CollisionEvent] = field(default_factory=list)
+    incidents: list[CollisionIncident] = field(default_factory=list)
     time_to_clear: dict[str, float | None] = field(default_factory=dict)
     metrics: dict[str, object] = field(default_factory=dict)
     unit_radius: float | None = None

@@ -44,7 +44,7 @@ def freeze_records(
                 unit_id=freeze.unit_id,
                 start=freeze.start,
                 duration=freeze.duration,
-                phantom=bool(freeze.phantom),
+                segments=tuple(freeze.segments),
                 reason=freeze.reason,
                 x=x,
                 y=y,

@@ -2,8 +2,14 @@
 
 A JSON list, one object per freeze, ordered by start time then unit, keys in this order::
 
-    {"unit": "u3", "start": 41.25, "duration": 6.5, "phantom": true, "true_block": false,
-     "reason": "no admissible path",
+    {"unit": "u5", "start": 35.8, "duration": 71.3, "phantom": true, "true_block": true,
+     "phantom_s": 47.1, "true_block_s": 24.2,
+     "segments": [
+        {"start": 35.8, "end": 60.0, "kind": "true_block",
+         "cause": "no lane route on ground truth"},
+        {"start": 60.0, "end": 107.1, "kind": "phantom",
+         "cause": "ground truth has a lane route (pod-9 moved at 60 s)"}],
+     "reason": "no lane to (33.00, 16.33)",
      "position": {"x": 12.4, "y": 3.1},
      "lanes": [],
      "blocking_cells": [
@@ -11,11 +17,15 @@ A JSON list, one object per freeze, ordered by start time then unit, keys in thi
          "last_observed": 38.75, "marked_by": [{"unit": "u1", "stamp": 38.75}]}],
      "recovery": [{"stamp": 42.25, "action": "turn_in_place", "cause": "path blocked"}]}
 
-Units: times [s] of sim time, positions [m] in the map frame. ``phantom``: the planner
-that froze the unit finds a way on the ground-truth costmap during the freeze (docs/files.md
-3; the grid planner for a path freeze, the lane router for a lane freeze:
-``planner.freeze``); ``true_block`` is its complement. ``p_occ`` and ``last_observed``
-are null for a cell never observed.
+Units: times [s] of sim time, positions [m] in the map frame. ``segments``: the freeze's
+time split by what ground truth said (docs/freezes.md; ``planner.freeze``): ``phantom``
+while the planner that froze the unit (the grid planner for a path freeze, the lane
+router for a lane freeze) finds a way on the ground-truth costmap of the moment,
+``true_block`` while it does not; ``cause`` says what it found and the world change that
+began the segment. ``phantom_s``/``true_block_s`` sum them; ``phantom``/``true_block``:
+the freeze has some seconds of that kind (a freeze at a pod that is moved away while
+the unit waits has both). ``p_occ`` and ``last_observed`` are null for a cell never
+observed.
 ``marked_by``: the scans (unit, stamp) that last marked the cell occupied.
 ``lanes``: for a lane freeze (the lane coordinator had no lane for the unit: "no lane
 to ...", "stranded on a blocked lane"), the blocked lanes that held it, each ``[a, b]``
@@ -32,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from mapserver.store.atomic import write_json
+from planner.freeze import PHANTOM, TRUE_BLOCK, Segment
 from scenarios.run.record import BlockingCell, FreezeRecord, RecoveryStep, RunRecord
 
 TIME_DECIMALS = 3  # [s] 1 ms
@@ -51,13 +62,25 @@ def freeze_to_dict(freeze: FreezeRecord) -> dict[str, Any]:
         "unit": freeze.unit_id,
         "start": _round(freeze.start, TIME_DECIMALS),
         "duration": _round(freeze.duration, TIME_DECIMALS),
-        "phantom": bool(freeze.phantom),
-        "true_block": not freeze.phantom,
+        "phantom": freeze.phantom,
+        "true_block": freeze.true_block,
+        "phantom_s": _round(freeze.seconds(PHANTOM), TIME_DECIMALS),
+        "true_block_s": _round(freeze.seconds(TRUE_BLOCK), TIME_DECIMALS),
+        "segments": [_segment(s) for s in freeze.segments],
         "reason": freeze.reason,
         "position": _position(freeze.x, freeze.y),
         "lanes": [[a, b] for a, b in freeze.lanes],
         "blocking_cells": [_cell(c) for c in freeze.blocking],
         "recovery": [_step(s) for s in freeze.recovery],
+    }
+
+
+def _segment(segment: Segment) -> dict[str, Any]:
+    return {
+        "start": _round(segment.start, TIME_DECIMALS),
+        "end": _round(segment.end, TIME_DECIMALS),
+        "kind": segment.kind,
+        "cause": segment.cause,
     }
 
 

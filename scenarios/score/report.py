@@ -2,12 +2,15 @@
 
 - Left, the final shared costmap (Nav2 costs: white free, shades of violet graded and
   inscribed, black lethal, grey unknown) with every freeze where the unit stood (red X
-  phantom, blue circle true block; size grows with duration), every world event
-  (green triangle, labelled E1, E2, ... in time order) and every collision where the unit
-  touched (orange star: the fleet's, yellow diamond: the scenario's; ``fleet.sim``).
-- Top right, a timeline per unit [s]: freezes as bars (red phantom, blue true block),
-  events as dashed green lines under the same labels, collisions as the same stars and
-  diamonds on the unit's row.
+  for its phantom seconds, blue circle for its true-block seconds, each sized by those
+  seconds: a freeze split in time has both), every world event (green triangle,
+  labelled E1, E2, ... in time order) and every collision incident where the unit first
+  touched (orange star: the fleet's, yellow diamond: the scenario's; ``fleet.sim``,
+  ``scenarios.score.incidents``).
+- Top right, a timeline per unit [s]: each freeze's segments as bars (red phantom, blue
+  true block), events as dashed green lines under the same labels, collision incidents
+  as the same stars and diamonds at their start on the unit's row, with a line on to
+  their end.
 - Middle right, the shared map against ground truth at every map read: phantom and
   forgotten cells, and the unknown share of the reachable floor
   (``scenarios.score.report_map_truth``).
@@ -40,7 +43,8 @@ from matplotlib.patches import Patch
 
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
 from mapserver.store.atomic import atomic_output
-from scenarios.run.record import EventRecord, FreezeRecord, RunRecord
+from planner.freeze import PHANTOM, TRUE_BLOCK
+from scenarios.run.record import EventRecord, RunRecord
 from scenarios.score.report_map_truth import draw_map_truth
 
 FIGURE_INCHES = (16.0, 9.0)
@@ -64,7 +68,9 @@ TITLE_METRICS = (
     ("phantom_freezes", "phantom freezes", "{:d}"),
     ("phantom_freeze_seconds", "phantom freeze time", "{:.1f} s"),
     ("true_block_freezes", "true blocks", "{:d}"),
+    ("true_block_seconds", "true-block time", "{:.1f} s"),
     ("stale_free_plans", "stale-free plans", "{:d}"),
+    ("inscribed_plans", "inscribed plans", "{:d}"),
     ("collisions", "collisions", "{:d}"),
     ("tasks_completed", "tasks done", "{:d}"),
     ("replans", "replans", "{:d}"),
@@ -133,7 +139,7 @@ def run_end(record: RunRecord) -> float:
     if isinstance(sim_seconds, int | float):
         stamps.append(float(sim_seconds))
     stamps += [f.start + f.duration for f in record.freezes]
-    stamps += [c.time for c in record.collisions]
+    stamps += [i.end for i in record.incidents]
     streams = (record.units, record.events, record.grids, record.plans, record.scans,
                record.map_truth)  # fmt: skip
     for stream in streams:
@@ -178,14 +184,14 @@ def _draw_map(ax: Axes, record: RunRecord) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    for phantom in (True, False):
-        group = [f for f in record.freezes if f.phantom == phantom]
+    for kind in (PHANTOM, TRUE_BLOCK):
+        group = [f for f in record.freezes if f.seconds(kind) > 0]
         ax.scatter(
             [f.x for f in group],
             [f.y for f in group],
-            s=[_marker_area(f) for f in group],
-            c=_FREEZE_STYLE[phantom][0],
-            marker=_FREEZE_STYLE[phantom][1],
+            s=[_marker_area(f.seconds(kind)) for f in group],
+            c=_FREEZE_STYLE[kind][0],
+            marker=_FREEZE_STYLE[kind][1],
             edgecolors="white",
             linewidths=1.0,
             zorder=4,
@@ -216,10 +222,10 @@ def _draw_map(ax: Axes, record: RunRecord) -> None:
 
 
 def _collisions_by_cause(record: RunRecord) -> list[tuple[str, list]]:
-    """The run's collisions by cause (``COLLISION_STYLE`` order; unknown causes drawn as
-    the fleet's)."""
+    """The run's collision incidents by cause (``COLLISION_STYLE`` order; unknown causes
+    drawn as the fleet's)."""
     groups: dict[str, list] = {cause: [] for cause in COLLISION_STYLE}
-    for c in record.collisions:
+    for c in record.incidents:
         groups[c.cause if c.cause in COLLISION_STYLE else "fleet"].append(c)
     return list(groups.items())
 
@@ -235,12 +241,14 @@ def _numbered_events(record: RunRecord) -> list[tuple[str, EventRecord]]:
     return [(f"E{i}", event) for i, event in enumerate(events, start=1)]
 
 
-_FREEZE_STYLE = {True: (PHANTOM_COLOR, "X"), False: (TRUE_BLOCK_COLOR, "o")}  # colour, marker
+# kind -> (colour, marker)
+_FREEZE_STYLE = {PHANTOM: (PHANTOM_COLOR, "X"), TRUE_BLOCK: (TRUE_BLOCK_COLOR, "o")}
 
 
 def _legend(figure: Figure, record: RunRecord) -> None:
     """One legend for all panels, along the bottom: freezes, events, and the cost colours."""
     phantom = sum(1 for f in record.freezes if f.phantom)
+    true = sum(1 for f in record.freezes if f.true_block)
     handles: list[Artist] = [
         Line2D(
             [],
@@ -258,7 +266,7 @@ def _legend(figure: Figure, record: RunRecord) -> None:
             marker="o",
             markersize=9,
             linestyle="none",
-            label=f"true-block freeze ({len(record.freezes) - phantom})",
+            label=f"true-block freeze ({true})",
         ),
         Line2D(
             [],
@@ -296,26 +304,27 @@ def _legend(figure: Figure, record: RunRecord) -> None:
     figure.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=10)
 
 
-def _marker_area(freeze: FreezeRecord) -> float:
-    """[pt^2] a freeze's marker: 60 for a short one, growing with duration, at most 400."""
-    return min(60.0 + 20.0 * freeze.duration, 400.0)
+def _marker_area(seconds: float) -> float:
+    """[pt^2] a freeze's marker for ``seconds`` [s] of one kind: 60 for a short one,
+    growing with the seconds, at most 400."""
+    return min(60.0 + 20.0 * seconds, 400.0)
 
 
 def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
     units = sorted(
         {u.unit_id for u in record.units}
         | {f.unit_id for f in record.freezes}
-        | {c.unit_id for c in record.collisions},
+        | {c.unit_id for c in record.incidents},
         key=_natural_key,
     )
     row = {unit: i for i, unit in enumerate(units)}
     for freeze in record.freezes:
-        color = PHANTOM_COLOR if freeze.phantom else TRUE_BLOCK_COLOR
-        ax.broken_barh(
-            [(freeze.start, max(freeze.duration, end * 2e-3))],
-            (row[freeze.unit_id] - 0.35, 0.7),
-            facecolors=color,
-        )
+        for segment in freeze.segments:
+            ax.broken_barh(
+                [(segment.start, max(segment.duration, end * 2e-3))],
+                (row[freeze.unit_id] - 0.35, 0.7),
+                facecolors=_FREEZE_STYLE[segment.kind][0],
+            )
     for label, event in _numbered_events(record):
         ax.axvline(event.stamp, color=EVENT_COLOR, linestyle="--", linewidth=1.0)
         ax.text(
@@ -329,7 +338,11 @@ def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
             transform=ax.get_xaxis_transform(),
         )
     for cause, group in _collisions_by_cause(record):
-        _scatter_collisions(ax, cause, [c.time for c in group], [row[c.unit_id] for c in group])
+        color = COLLISION_STYLE[cause][0]
+        for incident in group:
+            y = row[incident.unit_id]
+            ax.plot([incident.start, incident.end], [y, y], color=color, linewidth=2.5)
+        _scatter_collisions(ax, cause, [c.start for c in group], [row[c.unit_id] for c in group])
     if not units:
         ax.text(0.5, 0.5, "no units recorded", ha="center", va="center", transform=ax.transAxes)
     ax.set_yticks(range(len(units)), units, fontsize=8 if len(units) > 12 else 9)

@@ -4,9 +4,10 @@ half-width of its 95 % Student's t interval (``scenarios.sweep.compare_stats``),
 saying whether the default policy (decay) differs from the baseline (binary) beyond noise.
 
 Cells: ``12.3 ± 4.5`` (mean ± half-width, the metric's unit); ``12.3 (n=1)`` when only one
-seed gave a value (no interval); ``-`` when none did; ``time_to_clear_s`` reads
-``never`` when no run of the policy cleared the object, and ``(k never)`` after the
-mean of the runs that did when k runs did not. The verdict row says, per metric,
+seed gave a value (no interval); ``-`` when none did; ``time_to_clear_s`` reads ``-``
+when no run removed anything, ``never`` when objects were removed and no run of the
+policy cleared one, and ``(k never)`` after the mean of the runs that did when k runs
+that removed something cleared nothing. The verdict row says, per metric,
 ``better``/``worse`` when decay's and binary's intervals do not overlap and ``~`` when
 they do (or a side has no interval).
 """
@@ -29,6 +30,7 @@ __all__ = [
     "columns_for",
     "compare_markdown",
     "scenario_table",
+    "table_lines",
 ]
 
 CANDIDATE = "decay"  # the project's default policy
@@ -50,8 +52,11 @@ HEADLINE = (
     Column("phantom_freezes", "phantom freezes"),
     Column("phantom_freeze_seconds", "phantom s"),
     Column("true_block_freezes", "true blocks"),
+    Column("true_block_seconds", "true block s"),
     Column("stale_free_plans", "stale-free plans"),
+    Column("inscribed_plans", "inscribed plans"),
     Column("collisions", "collisions"),
+    Column("collision_seconds", "collision s"),
     Column("tasks_completed", "tasks", higher_is_better=True),
     Column("trips_per_unit_hour", "trips/unit-h", higher_is_better=True),
     Column("fleet_efficiency", "efficiency", higher_is_better=True, decimals=2),
@@ -74,11 +79,6 @@ def scenario_table(
 ) -> str:
     """The Markdown table of one scenario: ``by_policy`` maps each policy (in row order)
     to its successful runs' metrics; ``seeds``: seeds asked for per policy."""
-    columns = columns_for([m for runs in by_policy.values() for m in runs])
-    stats = {
-        policy: [summarise(_values(runs, c.name)) for c in columns]
-        for policy, runs in by_policy.items()
-    }
     percent = f"{CONFIDENCE * 100:g} %"
     lines = [
         f"### {scenario}",
@@ -88,6 +88,18 @@ def scenario_table(
         f"no interval. Row '{CANDIDATE} vs {BASELINE}': better/worse where the intervals "
         "do not overlap, ~ where they do.",
         "",
+    ]
+    return "\n".join(lines + table_lines(by_policy))
+
+
+def table_lines(by_policy: Mapping[str, Sequence[Mapping[str, Any]]]) -> list[str]:
+    """The Markdown table alone, a line per row (``scenario_table``'s arguments)."""
+    columns = columns_for([m for runs in by_policy.values() for m in runs])
+    stats = {
+        policy: [summarise(_values(runs, c.name)) for c in columns]
+        for policy, runs in by_policy.items()
+    }
+    lines = [
         "| policy | runs | " + " | ".join(c.title for c in columns) + " |",
         "|---|---:|" + "---:|" * len(columns),
     ]
@@ -100,7 +112,7 @@ def scenario_table(
             for a, b, c in zip(stats[CANDIDATE], stats[BASELINE], columns, strict=True)
         ]
         lines.append(f"| {CANDIDATE} vs {BASELINE} | | " + " | ".join(marks) + " |")
-    return "\n".join(lines)
+    return lines
 
 
 def _values(runs: Sequence[Mapping[str, Any]], name: str) -> list[float]:
@@ -108,32 +120,44 @@ def _values(runs: Sequence[Mapping[str, Any]], name: str) -> list[float]:
 
 
 def _cell(summary: Summary, column: Column, runs: Sequence[Mapping[str, Any]]) -> str:
+    never = _never(runs) if column.name == CLEAR_KEY else 0
     if summary.n == 0:
-        never = column.name == CLEAR_KEY and any(isinstance(m.get(CLEAR_KEY), list) for m in runs)
         return "never" if never else "-"
     mean = f"{summary.mean:.{column.decimals}f}"
     text = f"{mean} (n=1)" if summary.half_width is None else (
         f"{mean} ± {summary.half_width:.{column.decimals}f}")  # fmt: skip
-    if column.name == CLEAR_KEY and summary.n < len(runs):
-        text += f" ({len(runs) - summary.n} never)"
+    if never:
+        text += f" ({never} never)"
     return text
+
+
+def _never(runs: Sequence[Mapping[str, Any]]) -> int:
+    """The runs that removed something (a non-empty ``time_to_clear_s``) and cleared none."""
+    return sum(1 for m in runs if m.get(CLEAR_KEY) and metric_value(m, CLEAR_KEY) is None)
+
+
+def runs_by_policy(
+    results: Sequence[RunResult], scenario: str, policies: Sequence[str]
+) -> dict[str, list[dict[str, Any]]]:
+    """Each policy's successful runs' metrics of ``scenario`` (a file stem), in order."""
+    return {
+        policy: [
+            r.metrics
+            for r in results
+            if r.status == "ok" and r.run.name == scenario and r.run.policy == policy
+        ]
+        for policy in policies
+    }
 
 
 def compare_markdown(
     results: Sequence[RunResult], scenarios: Sequence[str], policies: Sequence[str], seeds: int
 ) -> str:
     """The whole ``compare.md``: a table per scenario (in order), then the failed runs."""
-    parts = []
-    for scenario in scenarios:
-        by_policy = {
-            policy: [
-                r.metrics
-                for r in results
-                if r.status == "ok" and r.run.name == scenario and r.run.policy == policy
-            ]
-            for policy in policies
-        }
-        parts.append(scenario_table(scenario, by_policy, seeds))
+    parts = [
+        scenario_table(scenario, runs_by_policy(results, scenario, policies), seeds)
+        for scenario in scenarios
+    ]
     failed = [r for r in results if r.status != "ok"]
     if failed:
         lines = [f"### Failed runs ({len(failed)}, left out of the tables)", ""]

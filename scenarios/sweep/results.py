@@ -4,7 +4,9 @@ results.csv columns: ``scenario`` (file stem), ``policy``, ``seed``, one column 
 swept parameter (its dotted key), every metrics.json key (docs/files.md first, then
 any other key in first-seen order; ``scenario``/``policy``/``seed`` are not repeated),
 then ``status`` (``ok``/``error``), ``error``, ``run_wall_seconds`` [s] and ``out_dir``.
-Lists are joined with ``;`` (a null item is ``null``); a missing value is empty.
+A metric that is an object is one column per leaf, named by its dotted path
+(``map_truth.forgotten_cells.mean``, ``wait_s.traffic``). Lists are joined with ``;``
+(a null item is ``null``); a missing value is empty.
 
 tradeoff.png: phantom freeze seconds [s] (y) against stale-free plans (x), one point per
 successful run, coloured by policy; one subplot per swept parameter with each point
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,8 +63,21 @@ def result_columns(sweep: Sweep, results: Sequence[RunResult]) -> list[str]:
     """The CSV header (module docstring)."""
     metrics = [k for k in CONTRACT_METRICS if k not in RUN_KEYS]
     for result in results:
-        metrics += [k for k in result.metrics if k not in metrics and k not in RUN_KEYS]
+        metrics += [k for k in flatten(result.metrics) if k not in metrics and k not in RUN_KEYS]
     return [*RUN_KEYS, *sweep.parameter_names, *metrics, *TAIL_COLUMNS]
+
+
+def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``metrics`` with every object replaced by its leaves under dotted keys
+    (``{"wait_s": {"traffic": 1.0}}`` -> ``{"wait_s.traffic": 1.0}``), in order."""
+    flat: dict[str, Any] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
 
 
 def result_rows(sweep: Sweep, results: Sequence[RunResult]) -> list[dict[str, str]]:
@@ -71,7 +86,7 @@ def result_rows(sweep: Sweep, results: Sequence[RunResult]) -> list[dict[str, st
     rows = []
     for result in results:
         run = result.run
-        values: dict[str, Any] = {**result.metrics, **dict(run.parameters)}
+        values: dict[str, Any] = {**flatten(result.metrics), **dict(run.parameters)}
         values |= {
             "scenario": run.name,
             "policy": run.policy,

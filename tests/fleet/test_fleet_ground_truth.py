@@ -82,6 +82,30 @@ def test_incremental_updates_equal_a_full_rebuild(world):
     assert np.array_equal(truth.occupied(), rasterise(world.obstacles.values(), GRID))
 
 
+def test_a_walk_through_time_gives_each_change_and_equals_a_full_rebuild(world):
+    """``states(start, end)``: the truth at the start, then one state per change time
+    strictly inside, each patched from the last and equal to a rebuild at that time."""
+    truth = GroundTruth(world, GRID, PARAMS)
+    for step in range(1, 8):  # bob walks one step a second; a tote comes and goes
+        world.advance_to(float(step))
+        world.move("bob", 7.0 - 0.5 * step, 6.0)
+        if step == 3:
+            world.add(Obstacle("tote-1", Kind.TOTE, Box(5.0, 2.0, 0.6, 0.4, 0.3)))
+        if step == 5:
+            world.remove("tote-1")
+    steps = list(truth.states(2.5, 6.0))
+    assert [s.time for s in steps] == [2.5, 3.0, 4.0, 5.0]
+    assert [[(c.id, c.before is None, c.after is None) for c in s.changes] for s in steps] == [
+        [], [("bob", False, False), ("tote-1", True, False)], [("bob", False, False)],
+        [("bob", False, False), ("tote-1", False, True)],
+    ]  # fmt: skip
+    for state in steps:
+        assert np.array_equal(state.costs, truth.costmap(at=state.time))
+        assert np.array_equal(state.mask, rasterise(world.obstacles_at(state.time).values(), GRID))
+        assert set(state.obstacles) == set(world.obstacles_at(state.time))
+        assert not state.costs.flags.writeable
+
+
 def test_a_rotated_box_is_rasterised_by_its_own_axes():
     box = Box(5.0, 4.0, 3.0, 0.5, yaw=math.pi / 4)
     mask = rasterise([Obstacle("p", Kind.POD, box)], GRID)

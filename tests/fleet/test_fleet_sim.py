@@ -189,7 +189,11 @@ def test_objects_dropped_or_moved_onto_a_standing_unit_are_the_scenarios_collisi
         sim.schedule(0.3, lambda w: w.add(tote))  # dropped onto the unit
         sim.schedule(0.5, lambda w: w.remove("tote-1"))
         sim.schedule(0.5, lambda w: w.add(pod))  # clear of the unit: no contact
-        events = [e for _ in range(8) for e in sim.step(0.1).collisions]
+        results = [sim.step(0.1) for _ in range(8)]
+        events = [e for r in results for e in r.collisions]
+        # held while the tote lies on it (0.3 and 0.4 s), not after it is taken away
+        held = (("u1", "tote-1"),)
+        assert [r.contacts for r in results[1:5]] == [(), held, held, ()]
         world.move("pod-1", 5.4, y)  # moved onto it between steps, at run time
         events += [e for _ in range(3) for e in sim.step(0.1).collisions]
         assert world.unit_pose("u1") == Pose2D(5.0, y, 0.0)  # never moved, never put back

@@ -1,5 +1,7 @@
 """Freeze detection and classification exactly as docs/files.md defines them."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -9,13 +11,37 @@ from planner.freeze import (
     Freeze,
     FreezeDetector,
     LaneBlock,
+    Segment,
     TruthLanes,
+    TruthState,
     UnitObservation,
     classify,
-    stale_free_cells,
+    split,
 )
 from planner.grid_search import GridPlanner
 from planner.lane_graph import LaneGraph
+
+
+def timeline(*states):
+    """A hand-made truth: (time [s], costs, change) from each time on, the first at 0."""
+
+    def states_between(start, end):
+        ordered = sorted(states, key=lambda s: s[0])
+        first = max((s for s in ordered if s[0] <= start), key=lambda s: s[0])
+        yield TruthState(start, first[1])
+        for time, costs, change in ordered:
+            if start < time < end:
+                yield TruthState(time, costs, change)
+
+    return states_between
+
+
+def always(costs):
+    return timeline((0.0, costs, ""))
+
+
+def kinds(segments):
+    return [(s.start, s.end, s.kind) for s in segments]
 
 
 def feed(detector, states, dt=0.25, unit="u1"):
@@ -56,7 +82,7 @@ def test_a_freeze_still_open_at_the_end_of_the_run_is_counted():
     assert (freeze.start, freeze.end) == (0.0, 10.0) and detector.freezes == [freeze]
 
 
-def test_a_freeze_is_phantom_when_the_planner_finds_a_path_on_ground_truth():
+def test_a_freeze_is_phantom_while_the_planner_finds_a_path_on_ground_truth():
     geometry = GridGeometry(20, 5, 0.5)
     planner = GridPlanner(geometry)
     open_floor = np.zeros(geometry.shape, np.uint8)
@@ -67,18 +93,66 @@ def test_a_freeze_is_phantom_when_the_planner_finds_a_path_on_ground_truth():
         return planner.plan(costs, start, goal).found
 
     freeze = Freeze("u1", 0.0, 3.0, "no path", (0.5, 1.0), (9.0, 1.0))
-    assert classify(freeze, lambda t: open_floor, plan) is True and freeze.phantom
-    assert classify(freeze, lambda t: walled, plan) is False and freeze.phantom is False
-    # the obstacle is removed during the freeze: phantom from then on
-    assert classify(freeze, lambda t: walled if t < 2.0 else open_floor, plan) is True
+    assert kinds(classify(freeze, always(open_floor), plan)) == [(0.0, 3.0, "phantom")]
+    assert freeze.seconds("phantom") == 3.0 and freeze.seconds("true_block") == 0.0
+    assert kinds(classify(freeze, always(walled), plan)) == [(0.0, 3.0, "true_block")]
+    assert freeze.segments[0].cause == "no path on ground truth"
+    # the wall is removed during the freeze: true block until then, phantom from then on
+    moved = timeline((0.0, walled, ""), (2.0, open_floor, "wall-1 removed"))
+    assert classify(freeze, moved, plan) == [
+        Segment(0.0, 2.0, "true_block", "no path on ground truth"),
+        Segment(2.0, 3.0, "phantom", "ground truth has a path (wall-1 removed at 2 s)"),
+    ]
 
 
-def test_stale_free_plans_cross_cells_lethal_in_ground_truth():
-    geometry = GridGeometry(10, 10, 1.0)
-    truth = np.zeros(geometry.shape, np.uint8)
-    truth[5, 5] = LETHAL
-    assert stale_free_cells([(4.5, 5.5), (5.5, 5.5), (6.5, 5.5)], truth, geometry) == [(5.5, 5.5)]
-    assert stale_free_cells([(0.5, 0.5), (99.0, 0.0)], truth, geometry) == []
+def test_the_split_of_a_hand_made_timeline_is_exact():
+    """A unit frozen from 35.8 s to 107.1 s: truly blocked until its pod moves at 60 s,
+    then the map alone holds it; a person crossing at 80-81.5 s changes the truth twice
+    without changing the verdict; a tote dropped at 100 s blocks it again."""
+    verdicts = [
+        (35.8, "true_block", "no lane route on ground truth"),
+        (60.0, "phantom", "ground truth has a lane route (pod-9 moved at 60 s)"),
+        (80.0, "phantom", "ground truth has a lane route (ann moved at 80 s)"),
+        (81.5, "phantom", "ground truth has a lane route (ann removed at 81.5 s)"),
+        (100.0, "true_block", "no lane route on ground truth (tote-1 added at 100 s)"),
+        (107.1, "phantom", "after the end: dropped"),
+    ]
+    segments = split(35.8, 107.1, verdicts)
+    assert segments == [
+        Segment(35.8, 60.0, "true_block", "no lane route on ground truth"),
+        Segment(60.0, 100.0, "phantom", "ground truth has a lane route (pod-9 moved at 60 s)"),
+        Segment(100.0, 107.1, "true_block",
+                "no lane route on ground truth (tote-1 added at 100 s)"),
+    ]  # fmt: skip
+    freeze = Freeze("u5", 35.8, 107.1, "no lane", (16.0, 16.3), (33.0, 16.3), segments=segments)
+    assert math.isclose(freeze.seconds("true_block"), 24.2 + 7.1)
+    assert math.isclose(freeze.seconds("phantom"), 40.0)
+    assert math.isclose(freeze.seconds("phantom") + freeze.seconds("true_block"), 71.3)
+    with pytest.raises(ValueError, match="at the start"):
+        split(0.0, 5.0, [(1.0, "phantom", "late")])
+    with pytest.raises(ValueError, match="kind"):
+        split(0.0, 5.0, [(0.0, "ghost", "?")])
+
+
+def test_a_goal_inside_an_obstacle_is_named_as_the_cause():
+    geometry = GridGeometry(20, 5, 0.5)
+    planner = GridPlanner(geometry)
+    boxed = np.zeros(geometry.shape, np.uint8)
+    boxed[1:4, 17:20] = LETHAL  # the goal (9.0, 1.0) is in it
+
+    def plan(costs, start, goal):
+        return planner.plan(costs, start, goal).found
+
+    def states(start, end):
+        yield TruthState(start, boxed, "", lambda x, y: "lies in tote-1" if x > 8 else None)
+
+    freeze = Freeze("u1", 12.0, 40.0, "no path", (0.5, 1.0), (9.0, 1.0))
+    (segment,) = classify(freeze, states, plan)
+    assert (segment.kind, segment.cause) == ("true_block", "its goal lies in tote-1")
+    lost = Freeze("u2", 1.0, 3.0, "no path", None, (9.0, 1.0))
+    assert classify(lost, states, plan) == [
+        Segment(1.0, 3.0, "true_block", "its position or goal is not known")
+    ]
 
 
 def test_a_bad_minimum_is_refused():
@@ -116,10 +190,18 @@ def test_a_lane_freeze_is_judged_by_the_lane_router_on_ground_truth_not_the_grid
     # The box truly blocks the lane: a true block, although the grid planner goes round it
     # (the old rule called this a phantom).
     assert grid_plan(boxed, LINE["a"], LINE["c"]) is True
-    assert classify(freeze, lambda t: boxed, grid_plan, lane_plan=lanes) is False
-    assert classify(freeze, lambda t: open_floor, grid_plan, lane_plan=lanes) is True
+    assert kinds(classify(freeze, always(boxed), grid_plan, lane_plan=lanes)) == [
+        (0.0, 3.0, "true_block")
+    ]
+    assert kinds(classify(freeze, always(open_floor), grid_plan, lane_plan=lanes)) == [
+        (0.0, 3.0, "phantom")
+    ]
     # removed during the freeze: phantom from then on
-    assert classify(freeze, lambda t: boxed if t < 2 else open_floor, grid_plan, lane_plan=lanes)
+    removed = timeline((0.0, boxed, ""), (2.0, open_floor, "box removed"))
+    assert kinds(classify(freeze, removed, grid_plan, lane_plan=lanes)) == [
+        (0.0, 2.0, "true_block"),
+        (2.0, 3.0, "phantom"),
+    ]
     assert not graph.is_blocked("b", "c") and graph.version == 0  # the live graph untouched
 
 
@@ -139,12 +221,10 @@ def test_a_lane_freeze_goal_off_the_lanes_does_not_make_it_a_true_block():
         lane_block=LaneBlock(("a",), "c"),
     )
     assert grid_plan(walled_goal, LINE["a"], (6.5, 3.0)) is False
-    assert (
-        classify(
-            freeze, lambda t: walled_goal, grid_plan, lane_plan=TruthLanes(graph, LANE_GEOMETRY)
-        )
-        is True
-    )
+    lanes = TruthLanes(graph, LANE_GEOMETRY)
+    assert kinds(classify(freeze, always(walled_goal), grid_plan, lane_plan=lanes)) == [
+        (0.0, 3.0, "phantom")
+    ]
 
 
 def test_a_stranded_unit_gets_through_only_if_its_lane_is_truly_clear_ahead_of_it():
@@ -157,10 +237,13 @@ def test_a_stranded_unit_gets_through_only_if_its_lane_is_truly_clear_ahead_of_i
             "u1", 0.0, 2.0, "stranded on a blocked lane", (x, 1.05), LINE["c"], lane_block=block
         )
 
-    assert classify(stranded_at(4.0), lambda t: boxed, grid_plan, lane_plan=lanes) is False
-    assert classify(stranded_at(4.0), lambda t: open_floor, grid_plan, lane_plan=lanes) is True
+    def verdict(x, truth):
+        (segment,) = classify(stranded_at(x), always(truth), grid_plan, lane_plan=lanes)
+        return segment.kind
+
+    assert verdict(4.0, boxed) == "true_block" and verdict(4.0, open_floor) == "phantom"
     # past the box already: the coordinator's own rule lets it carry on
-    assert classify(stranded_at(5.5), lambda t: boxed, grid_plan, lane_plan=lanes) is True
+    assert verdict(5.5, boxed) == "phantom"
 
 
 def test_a_lane_freeze_must_be_classified_with_the_lane_router():
@@ -168,7 +251,7 @@ def test_a_lane_freeze_must_be_classified_with_the_lane_router():
         "u1", 0.0, 2.0, "no lane", (0.5, 0.5), (5.0, 5.0), lane_block=LaneBlock(("a",), "c")
     )
     with pytest.raises(ValueError, match="lane freeze"):
-        classify(freeze, lambda t: np.zeros((5, 5), np.uint8), grid_plan)
+        classify(freeze, always(np.zeros((5, 5), np.uint8)), grid_plan)
 
 
 def test_a_freeze_keeps_its_first_lane_block_and_every_lane_named_during_it():

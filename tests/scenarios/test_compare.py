@@ -113,6 +113,16 @@ def test_table_cells_are_mean_and_half_width_with_a_verdict_row() -> None:
     assert verdicts["phantom freezes"] == "~"  # identical values
 
 
+def test_time_to_clear_is_empty_where_nothing_was_removed_and_never_only_where_it_was():
+    nothing = [{"phantom_freezes": 0, "time_to_clear_s": []} for _ in range(2)]
+    stuck = [{"phantom_freezes": 0, "time_to_clear_s": [None]} for _ in range(2)]
+    mixed = [*nothing, {"phantom_freezes": 0, "time_to_clear_s": [4.0]}, *stuck]
+    rows = table_rows(scenario_table("t", {"decay": nothing, "binary": stuck, "x": mixed}, 5))
+    assert rows["decay"]["time to clear s"] == "-"
+    assert rows["binary"]["time to clear s"] == "never"
+    assert rows["x"]["time to clear s"] == "4.0 (n=1) (2 never)"  # the two that removed
+
+
 def test_table_verdicts_and_map_truth_columns() -> None:
     decay = runs([1, 1, 1], map_truth=truth(1.0))
     binary = runs([4, 4, 4], map_truth=truth(3.0))

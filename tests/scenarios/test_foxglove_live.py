@@ -22,6 +22,7 @@ from websockets.sync.client import connect
 from scenarios.cli.main import build_parser, main
 from scenarios.cli.run import FOXGLOVE_PORT, _foxglove_port
 from scenarios.replay.live import FIXED_CHANNELS
+from scenarios.replay.metrics_channel import VERDICTS
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = "scenarios/tiny.yaml"
@@ -148,7 +149,7 @@ def test_live_metrics_are_the_replays_without_the_freeze_verdicts(live_run):
     live = [(ns, json.loads(p)) for t, ns, p in received if t == "/metrics"]
     assert len(live) >= 10
     for ns, message in live:
-        verdicts = {"phantom_freezes", "phantom_freeze_seconds", "true_block_freezes"}
+        verdicts = set(VERDICTS)
         assert not verdicts & set(message)
         assert message == {k: v for k, v in recorded[ns].items() if k not in verdicts}
     assert live[-1][0] == max(recorded)  # the last sample, at the run's end, went out too

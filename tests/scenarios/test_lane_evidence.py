@@ -10,7 +10,7 @@ from lane_helpers import Drive, FakeMap
 from mapserver.client import CellOut
 from mapserver.core.geometry import GridGeometry
 from planner.coordinator import LaneCoordinator
-from planner.freeze import FreezeDetector, LaneBlock, UnitObservation
+from planner.freeze import FreezeDetector, LaneBlock, Segment, UnitObservation
 from planner.lane_graph import LaneGraph
 from scenarios.run.record import RunRecord
 from scenarios.score.evidence import freeze_records
@@ -156,7 +156,7 @@ def test_a_lane_freeze_in_freezes_json_names_its_lanes_and_their_cells(tmp_path)
     assert freeze.lane_block.origin == ("a",)
     agents = {"u1": SimpleNamespace(navigator=SimpleNamespace(actions=[]))}
     scans = {1.5: [("u2", 4.0, 0.5, 8.0)]}
-    freeze.phantom = False
+    freeze.segments = [Segment(freeze.start, freeze.end, "true_block", "no lane route")]
     (rec,) = freeze_records(detector.freezes, agents, coord, Truth((5.0, 0.0)), evidence, scans)
     assert rec.lanes == (("b", "c"), ("a9", "c"))
     record = RunRecord("x", "decay", 1, GridGeometry(80, 40, 0.1))
@@ -192,7 +192,8 @@ def test_each_freeze_gets_the_evidence_read_during_it_not_at_an_earlier_freeze()
     assert detector.open_since("u1") == 3.0 and detector.open_since("u2") is None
     detector.finish(4.75)
     first, second = detector.freezes
-    first.phantom, second.phantom = False, True
+    first.segments = [Segment(first.start, first.end, "true_block", "box there")]
+    second.segments = [Segment(second.start, second.end, "phantom", "box gone")]
 
     class BoxGoneAt2(Truth):
         def is_occupied(self, points, at=None):

@@ -18,6 +18,7 @@ from fleet.sim import CollisionEvent
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import BEAM_INVALID, BEAM_NO_RETURN, BEAM_RETURN, PoseStd, classify_ranges
+from planner.freeze import Segment
 from scenarios.replay.channels import SCHEMAS
 from scenarios.replay.costmap_palette import COSTMAP_RGBA
 from scenarios.replay.foxglove_messages import decode_ranges, encode_ranges
@@ -36,8 +37,14 @@ from scenarios.run.record import (
     ScanSample,
     UnitSample,
 )
-from scenarios.score.collisions_json import collision_counts, write_collisions
+from scenarios.score.collisions_json import write_collisions
 from scenarios.score.freezes_json import write_freezes
+from scenarios.score.incidents import (
+    CollisionIncident,
+    ContactCell,
+    PlanContext,
+    collision_counts,
+)
 from scenarios.score.report import throughput_rows, title, write_report
 
 GEOMETRY = GridGeometry(width=40, height=30, resolution=0.25, origin_x=-1.0, origin_y=-0.5)
@@ -73,9 +80,10 @@ def _grid(stamp: float, version: int) -> GridSample:
 
 def make_record() -> RunRecord:
     """Three units for 10 s, two object samples (a pod removed, a tote dropped), three
-    grids, seven scans (two units), three plans (one stale-free), three events, two
-    freezes (u1 phantom, u2 a true-block lane freeze), two collisions (u2 drove into
-    the tote, the person walked into u10) and three counters samples."""
+    grids, seven scans (two units), four plans (one stale-free, one inscribed), three
+    events, two freezes (u1 true block for 1 s then phantom for 1.5 s, u2 a true-block
+    lane freeze), two collision incidents (u2 drove into the tote twice, the person
+    walked into u10) and three counters samples."""
     record = RunRecord("moved_pod", "sticky", 7, GEOMETRY, unit_radius=0.35, unit_height=0.5)
     for i in range(21):
         t = i * 0.5
@@ -103,6 +111,7 @@ def make_record() -> RunRecord:
         PlanSample(1.0, "u1", ((1.0, 2.0), (2.0, 2.0), (3.0, 3.0))),
         PlanSample(2.5, "u2", ((2.0, 3.0), (4.0, 3.0)), stale_cells=((4.0, 3.0),)),
         PlanSample(4.0, "u1", ()),
+        PlanSample(4.5, "u1", ((1.0, 2.0), (3.0, 2.0)), inscribed_cells=((2.0, 2.0),)),
     ]
     record.events += [
         EventRecord(2.0, "drop", "t1", 2.0, 5.0, "a tote falls into aisle A"),
@@ -114,7 +123,7 @@ def make_record() -> RunRecord:
             "u2",
             5.0,
             1.5,
-            False,
+            (Segment(5.0, 6.5, "true_block", "no lane route on ground truth"),),
             "tote in the aisle",
             3.0,
             4.0,
@@ -126,7 +135,10 @@ def make_record() -> RunRecord:
             "u1",
             3.5,
             2.5,
-            True,
+            (
+                Segment(3.5, 4.5, "true_block", "its goal lies in p1"),
+                Segment(4.5, 6.0, "phantom", "ground truth has a path (p1 removed at 4.5 s)"),
+            ),
             "no admissible path",
             1.7,
             2.0,
@@ -142,7 +154,13 @@ def make_record() -> RunRecord:
     ]
     record.collisions += [
         CollisionEvent(2.5, "u2", "t1", "tote", 2.1, 4.6, "fleet"),
+        CollisionEvent(3.1, "u2", "t1", "tote", 2.1, 4.6, "fleet"),
         CollisionEvent(4.2, "u10", "h1", "person", 6.0, 1.4, "scenario"),
+    ]
+    plan = PlanContext(2.0, 5, (ContactCell(2.125, 4.875, "free", "lethal"),))
+    record.incidents += [
+        CollisionIncident("u2", "t1", "tote", "fleet", 2.5, 3.1, 2.1, 4.6, 2, plan),
+        CollisionIncident("u10", "h1", "person", "scenario", 4.2, 4.2, 6.0, 1.4),
     ]
     record.counters += [
         CountersSample(0.0, 0, 0, 0, 0, 0, 0),
@@ -152,8 +170,10 @@ def make_record() -> RunRecord:
     record.time_to_clear = {"p1": 2.25, "p9": None}
     record.metrics = {
         "phantom_freezes": 1,
-        "phantom_freeze_seconds": 2.5,
-        "true_block_freezes": 1,
+        "phantom_freeze_seconds": 1.5,
+        "true_block_freezes": 2,
+        "true_block_seconds": 2.5,
+        "inscribed_plans": 1,
         "stale_free_plans": 1,
         "collisions": 1,
         "scenario_collisions": 1,
@@ -185,6 +205,9 @@ def test_freezes_json_lists_every_freeze_with_its_evidence_in_start_order(record
         "duration",
         "phantom",
         "true_block",
+        "phantom_s",
+        "true_block_s",
+        "segments",
         "reason",
         "position",
         "lanes",
@@ -192,8 +215,15 @@ def test_freezes_json_lists_every_freeze_with_its_evidence_in_start_order(record
         "recovery",
     ]
     assert phantom["lanes"] == [] and freezes[1]["lanes"] == [["j1_2", "s-1"]]
-    assert (phantom["phantom"], phantom["true_block"]) == (True, False)
+    assert (phantom["phantom"], phantom["true_block"]) == (True, True)
+    assert (phantom["phantom_s"], phantom["true_block_s"]) == (1.5, 1.0)
+    assert phantom["segments"] == [
+        {"start": 3.5, "end": 4.5, "kind": "true_block", "cause": "its goal lies in p1"},
+        {"start": 4.5, "end": 6.0, "kind": "phantom",
+         "cause": "ground truth has a path (p1 removed at 4.5 s)"},
+    ]  # fmt: skip
     assert (freezes[1]["phantom"], freezes[1]["true_block"]) == (False, True)
+    assert (freezes[1]["phantom_s"], freezes[1]["true_block_s"]) == (0.0, 1.5)
     assert phantom["start"] == 3.5 and phantom["duration"] == 2.5
     assert phantom["position"] == {"x": 1.7, "y": 2.0}
     cell, unseen = phantom["blocking_cells"]
@@ -222,24 +252,34 @@ def test_freezes_json_of_a_run_without_freezes_is_an_empty_list(tmp_path):
 
 
 # ------------------------------------------------------------------------------ collisions.json
-def test_collisions_json_lists_every_collision_with_its_cause_in_time_order(record, tmp_path):
+def test_collisions_json_lists_every_incident_with_what_the_map_held(record, tmp_path):
     unordered = make_record()
-    unordered.collisions.reverse()
-    unordered.collisions.append(CollisionEvent(2.5, "u1", "u2", "unit", 1.23456, 2.0, "fleet"))
+    unordered.incidents.reverse()
+    unordered.incidents.append(
+        CollisionIncident("u1", "u2", "unit", "fleet", 2.5, 2.5, 1.23456, 2.0)
+    )
     path = write_collisions(unordered, tmp_path / "collisions.json")
     collisions = json.loads(path.read_text())
     assert collisions == [
-        {"time": 2.5, "unit": "u2", "other": "t1", "other_kind": "tote", "cause": "fleet",
-         "position": {"x": 2.1, "y": 4.6}},
-        {"time": 2.5, "unit": "u1", "other": "u2", "other_kind": "unit", "cause": "fleet",
-         "position": {"x": 1.235, "y": 2.0}},
-        {"time": 4.2, "unit": "u10", "other": "h1", "other_kind": "person",
-         "cause": "scenario", "position": {"x": 6.0, "y": 1.4}},
+        {"unit": "u2", "other": "t1", "other_kind": "tote", "cause": "fleet",
+         "start": 2.5, "end": 3.1, "duration": 0.6, "contacts": 2,
+         "position": {"x": 2.1, "y": 4.6},
+         "plan": {"stamp": 2.0, "map_version": 5, "contact_cells": [
+             {"x": 2.125, "y": 4.875, "map": "free", "truth": "lethal"}]}},
+        {"unit": "u1", "other": "u2", "other_kind": "unit", "cause": "fleet",
+         "start": 2.5, "end": 2.5, "duration": 0.0, "contacts": 1,
+         "position": {"x": 1.235, "y": 2.0}, "plan": None},
+        {"unit": "u10", "other": "h1", "other_kind": "person", "cause": "scenario",
+         "start": 4.2, "end": 4.2, "duration": 0.0, "contacts": 1,
+         "position": {"x": 6.0, "y": 1.4}, "plan": None},
     ]  # fmt: skip
-    assert collision_counts(unordered) == {"collisions": 2, "scenario_collisions": 1}
+    assert collision_counts(unordered.incidents) == {
+        "collisions": 2, "scenario_collisions": 1, "collision_seconds": 0.6,
+        "collision_contacts": 3,
+    }  # fmt: skip
     empty = RunRecord("x", "decay", 1, GEOMETRY)
     assert json.loads(write_collisions(empty, tmp_path / "none.json").read_text()) == []
-    assert collision_counts(empty) == {"collisions": 0, "scenario_collisions": 0}
+    assert collision_counts(empty.incidents)["collisions"] == 0
 
 
 # ------------------------------------------------------------------------------ report.png
@@ -264,7 +304,7 @@ def test_report_marks_every_collision_on_the_map_and_the_timeline(record, tmp_pa
         return int((pixels == rgb).all(axis=1).sum())
 
     bare = make_record()
-    bare.collisions.clear()
+    bare.incidents.clear()
     with_, without = panels(record, "with.png"), panels(bare, "without.png")
     for drawn, empty in zip(with_, without, strict=True):
         for color in ("#ff7f0e", "#ffd92f"):  # fleet's star, scenario's diamond
@@ -281,7 +321,9 @@ def test_report_title_counts_the_fleets_collisions_then_the_scenarios(record):
 def test_report_title_names_the_run_and_its_key_metrics(record):
     head, metrics = title(record).split("\n")
     assert head == "moved_pod  |  policy sticky  |  seed 7"
-    assert "phantom freezes 1" in metrics and "phantom freeze time 2.5 s" in metrics
+    assert "phantom freezes 1" in metrics and "phantom freeze time 1.5 s" in metrics
+    assert "true blocks 2" in metrics and "true-block time 2.5 s" in metrics
+    assert "inscribed plans 1" in metrics
     assert "stale-free plans 1" in metrics and "tasks done 4" in metrics
 
 
@@ -349,15 +391,15 @@ def test_replay_holds_every_channel_with_its_foxglove_schema_and_count(record, r
     assert counts == {
         "/units/u1/scan": 3,
         "/units/u2/scan": 4,
-        "/units/u1/plan": 2,
+        "/units/u1/plan": 3,
         "/units/u2/plan": 1,
         "/map/occupancy": 3,
         "/map/costmap": 3,
         "/scene": 21 + 2,  # one update per unit-sample stamp, one per objects sample
         "/tf": 21,  # one per unit-sample stamp
         "/metrics": 3,
-        "/log": 3 + 2 + 3 + 1 + 2,  # events, freezes, recovery steps, stale-free plans,
-        # collisions
+        "/log": 3 + 2 + 3 + 2 + 2,  # events, freezes, recovery steps, unsafe plans,
+        # collision incidents
     }
     for schema in summary.schemas.values():
         assert schema.encoding == "jsonschema"
@@ -464,12 +506,14 @@ def test_replay_metrics_hold_the_counts_and_verdicts_as_they_stood(record, repla
     assert [[m[k] for k in counts] for m in metrics] == [
         [0, 0, 0, 0, 0, 0], [1, 1, 1, 1, 0, 3], [4, 0, 1, 1, 1, 3]
     ]  # fmt: skip
-    verdicts = [(m["phantom_freezes"], m["phantom_freeze_seconds"], m["true_block_freezes"])
-                for m in metrics]  # fmt: skip
-    assert verdicts == [(0, 0, 0), (1, 0.5, 0), (1, 2.5, 1)]  # u1 phantom 3.5-6.0, u2 true 5.0
+    verdicts = [(m["phantom_freezes"], m["phantom_freeze_seconds"], m["true_block_freezes"],
+                 m["true_block_seconds"]) for m in metrics]  # fmt: skip
+    # u1 true block 3.5-4.5 s then phantom to 6.0 s; u2 true block 5.0-6.5 s
+    assert verdicts == [(0, 0, 0, 0), (0, 0, 1, 0.5), (1, 1.5, 2, 2.5)]
     last = metrics[-1]
     for key in ("tasks_completed", "stale_free_plans", "collisions", "scenario_collisions",
-                "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes"):  # fmt: skip
+                "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes",
+                "true_block_seconds"):  # fmt: skip
         assert last[key] == record.metrics[key], key
 
 

@@ -130,8 +130,16 @@ def test_a_pod_moved_out_of_a_dead_end_makes_a_phantom_freeze_under_sticky(tmp_p
     assert metrics["phantom_freezes"] >= 1 and metrics["phantom_freeze_seconds"] > 0
     assert metrics["time_to_clear_s"] == [None]  # sticky never forgets the pod
     phantom = [f for f in freezes if f["phantom"]]
-    assert phantom and all(not f["true_block"] for f in phantom)
-    assert all(not cell["truly_occupied"] for f in phantom for cell in f["blocking_cells"])
+    assert phantom
+    for freeze in phantom:  # phantom seconds only once the pod has moved, at 60 s
+        segments = freeze["segments"]
+        assert all(s["start"] >= 60.0 for s in segments if s["kind"] == "phantom")
+        assert sum(s["end"] - s["start"] for s in segments) == pytest.approx(freeze["duration"])
+        if freeze["start"] >= 60.0:  # all of it after: its cells are truly free
+            assert not any(cell["truly_occupied"] for cell in freeze["blocking_cells"])
+    assert metrics["phantom_freeze_seconds"] == pytest.approx(
+        sum(f["phantom_s"] for f in freezes), abs=1e-3
+    )
 
 
 def test_a_dropped_tote_never_removed_is_a_true_block_never_a_phantom(tmp_path):

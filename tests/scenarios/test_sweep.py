@@ -161,6 +161,11 @@ def test_sweep_writes_one_row_per_run_with_every_contract_metric(
         assert (folder / "metrics.json").is_file()
     # the tote is removed at 3 s: one time-to-clear entry per removal event
     assert all(len(r["time_to_clear_s"].split(";")) == 1 for r in rows)
+    # objects are columns by dotted path, numbers in them (not Python reprs)
+    for row in rows:
+        assert "map_truth" not in row and "wait_s" not in row
+        float(row["map_truth.forgotten_cells.mean"])
+        assert float(row["wait_s.traffic"]) >= 0.0
 
 
 def test_sweep_writes_a_png_tradeoff_plot(swept: tuple[Path, int]) -> None:
