@@ -18,15 +18,15 @@ import sys
 from pathlib import Path
 
 from mapserver.core.sensor_model import Policy
+from scenarios.sweep.sweep_file import DEFAULT_POLICIES as SWEEP_POLICIES
 
 __all__ = ["CSV_FILENAME", "MD_FILENAME", "add_compare_parser", "parse_policies", "run_compare"]
 
 CSV_FILENAME = "compare.csv"
 MD_FILENAME = "compare.md"
 DEFAULT_SEEDS = 5
-DEFAULT_POLICIES = "decay,binary,sticky"
-"""The policies compared unless told: the three the README's tables measure (``dual``,
-docs/dual.md, joins them by name: ``--policies decay,binary,sticky,dual``)."""
+DEFAULT_POLICIES = ",".join(SWEEP_POLICIES)
+"""The policies compared unless told (``sweep_file.DEFAULT_POLICIES``)."""
 
 
 def add_compare_parser(subparsers: argparse._SubParsersAction) -> None:
