@@ -469,6 +469,7 @@ def apply_marks(buffers, box, grid, scan, model):
     words = marks.view(np.uint64)
     ev_hit, ev_free, ev_nr = l_hit - l0, l_miss - l0, l_miss_no_return - l0
     last_t, f_occupied, f_free = math.nan, 1.0, 1.0  # the fade factors of the last t
+    dual = policy == POLICY_DUAL
     n = 0
     for row in range(box[1], box[3] + 1):
         for w in range((row * width + box[0]) >> 3, ((row * width + box[2]) >> 3) + 1):
@@ -482,7 +483,6 @@ def apply_marks(buffers, box, grid, scan, model):
                     continue
                 marks[idx] = MARK_NONE
                 n += 1
-                dual = policy == POLICY_DUAL
                 if policy == POLICY_BINARY or (dual and history[idx] == HISTORY_VOID):
                     log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
                 else:

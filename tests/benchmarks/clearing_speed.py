@@ -100,6 +100,26 @@ def crossed(
     return np.any((t_in < t_out) & (t_out > 0) & (t_in < r), axis=1)
 
 
+def measured_scan(world: World, lidar: Lidar, stamp: float, pose: Pose2D) -> Scan:
+    """Unit ``u1``'s LiDAR scan at ``stamp`` [s] from ``pose`` (already set in ``world``),
+    its ranges at the journal's float32 precision, as a unit posts them."""
+    config = lidar.config
+    ranges = lidar.measure(world, "u1").astype(np.float32).astype(np.float64)
+    return Scan(
+        "u1", stamp, pose, lidar.angle_min, lidar.angle_increment,
+        config.range_min, config.range_max, ranges,
+    )  # fmt: skip
+
+
+def settings_overrides(items: list[str]) -> dict[str, Any]:
+    """``--set KEY=VALUE`` items as dotted settings, each value read as YAML."""
+    overrides: dict[str, Any] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        overrides[key] = yaml.safe_load(value)
+    return overrides
+
+
 def settings_for(policy: str, data_dir: Path, resolution: float, extra: dict[str, Any]) -> Any:
     overrides = {
         "data_dir": str(data_dir),
@@ -181,11 +201,7 @@ def run_case(
                 clock["stamp"] += config.period
                 pose = Pose2D(float(x), lane_y, 0.0)
                 world.set_unit_pose("u1", pose)
-                ranges = lidar.measure(world, "u1").astype(np.float32).astype(np.float64)
-                scan = Scan(  # ranges at the journal's float32 precision, as a unit posts
-                    "u1", clock["stamp"], pose, lidar.angle_min, lidar.angle_increment,
-                    config.range_min, config.range_max, ranges,
-                )  # fmt: skip
+                scan = measured_scan(world, lidar, clock["stamp"], pose)
                 service.ingest([scan])
                 return scan
 
@@ -270,10 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--trace", action="store_true", help="a line per scan after crossing")
     args = parser.parse_args(argv)
-    extra = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        extra[key] = yaml.safe_load(value)
+    extra = settings_overrides(args.set)
     rows = []
     for sensor in args.sensors.split(","):
         for policy in args.policies.split(","):

@@ -45,10 +45,8 @@ sys.path[:] = [str(HERE.parents[1])] + [p for p in sys.path if Path(p or ".").re
 import argparse  # noqa: E402
 import json  # noqa: E402
 import tempfile  # noqa: E402
-from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
 from fleet.ground_truth import cells_of_bounds  # noqa: E402
 from fleet.layout import Kind, Layout, Obstacle  # noqa: E402
@@ -62,8 +60,10 @@ from tests.benchmarks.clearing_speed import (  # noqa: E402
     SENSORS,
     UNIT_RADIUS,
     crossed,
+    measured_scan,
     perimeter_walls,
     settings_for,
+    settings_overrides,
     since,
 )
 
@@ -87,12 +87,7 @@ class Drive:
         self.stamp += self.period
         pose = Pose2D(float(x), float(y), float(yaw))
         self.world.set_unit_pose("u1", pose)
-        config = self.lidar.config
-        ranges = self.lidar.measure(self.world, "u1").astype(np.float32).astype(np.float64)
-        scan = Scan(  # ranges at the journal's float32 precision, as a unit posts
-            "u1", self.stamp, pose, self.lidar.angle_min, self.lidar.angle_increment,
-            config.range_min, config.range_max, ranges,
-        )  # fmt: skip
+        scan = measured_scan(self.world, self.lidar, self.stamp, pose)
         self.service.ingest([scan])
         return scan
 
@@ -165,10 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    extra: dict[str, Any] = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        extra[key] = yaml.safe_load(value)
+    extra = settings_overrides(args.set)
     rows = []
     for sensor in args.sensors.split(","):
         for policy in args.policies.split(","):
