@@ -123,6 +123,28 @@ def rss_mib(pid: int) -> float | None:
     return None
 
 
+def journal_shape(data_dir: Path) -> dict[str, float] | None:
+    """What the journal of ``data_dir`` holds (read-only; None if it cannot be read):
+    ``held`` scans, ``snapshots`` and their ``snapshot_mib``, the file's ``free_mib``
+    (freelist pages, reused by later writes) and the ``wal_mib`` of its -wal file."""
+    path = journal_path(Path(data_dir))
+    try:
+        with Journal(path, readonly=True) as journal:
+            infos = journal.snapshot_infos()
+            _, free, page_size = journal.page_stats()
+            held = journal.count()
+    except Exception:  # a probe reports what it finds, whatever the journal's state
+        return None
+    wal = Path(f"{path}-wal")
+    return {
+        "held": held,
+        "snapshots": len(infos),
+        "snapshot_mib": round(sum(i.nbytes for i in infos) / MIB, 1),
+        "free_mib": round(free * page_size / MIB, 1),
+        "wal_mib": round((wal.stat().st_size if wal.exists() else 0) / MIB, 1),
+    }
+
+
 def journal_count(data_dir: Path) -> int | None:
     """Scans in the journal of ``data_dir`` (read-only; None if it cannot be read)."""
     try:

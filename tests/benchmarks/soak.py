@@ -79,7 +79,7 @@ from tests.benchmarks.fleet_load import (  # noqa: E402
     slope_mib_per_min,
 )
 from tests.benchmarks.fleet_probes import ClockedUnit, codes, data_dir_bytes  # noqa: E402
-from tests.benchmarks.server_process import MIB, LoggedServer  # noqa: E402
+from tests.benchmarks.server_process import MIB, LoggedServer, journal_shape  # noqa: E402
 
 LAG_S = 30.0  # [s] the lagging unit's stamps behind the fleet's
 
@@ -393,7 +393,8 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
         print(
             f"{'fleet min':>9} {'real s':>7} {'x real':>6} {'honest ok':>9} {'refused':>7} "
             f"{'greedy ok':>9} {'refused':>7} {'(429)':>6} {'data MiB':>8} {'journal':>8} "
-            f"{'RSS MiB':>7} {'p50 ms':>7} {'p99 ms':>7}",
+            f"{'RSS MiB':>7} {'p50 ms':>7} {'p99 ms':>7} {'held':>8} {'snaps':>5} {'snap MiB':>8} "
+            f"{'free MiB':>8} {'wal MiB':>7}",
             flush=True,
         )
         t0 = time.monotonic()
@@ -423,6 +424,7 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
                     "rss_mib": round(server.rss_mib() or math.nan, 1),
                     "p50_ms": round(pct(window, 50), 1),
                     "p99_ms": round(pct(window, 99), 1),
+                    **(journal_shape(data_dir) or {}),
                 }
                 samples.append(s)
                 print(
@@ -430,7 +432,9 @@ def soak(args: argparse.Namespace, data_dir: Path) -> dict[str, Any]:
                     f"{s['honest_ok']:9d} {s['honest_refused']:7d} {s['greedy_ok']:9d} "
                     f"{s['greedy_refused']:7d} {s['greedy_429']:6d} {s['data_mib']:8.1f} "
                     f"{s['journal_mib']:8.1f} {s['rss_mib']:7.1f} {s['p50_ms']:7.1f} "
-                    f"{s['p99_ms']:7.1f}",
+                    f"{s['p99_ms']:7.1f} {s.get('held', -1):8d} {s.get('snapshots', -1):5d} "
+                    f"{s.get('snapshot_mib', math.nan):8.1f} {s.get('free_mib', math.nan):8.1f} "
+                    f"{s.get('wal_mib', math.nan):7.1f}",
                     flush=True,
                 )
                 next_sample += every
