@@ -18,9 +18,15 @@ the map rebuildable.)
 Anchors. The snapshot at the cut (the *anchor*) is kept with the scans after it, so every
 retained scan replays from a kept snapshot at or before it (``fleetmap replay``, start-up
 when the newer snapshots are damaged). Snapshots between the anchor and the newest
-``keep_snapshots`` are thinned to ``ANCHORS`` spread over the retained seqs, the future
-anchors: the journal then keeps at most about ``(1 + 1 / ANCHORS)`` times the retention
-plus one snapshot interval. Snapshots older than the anchor are deleted.
+``keep_snapshots`` are thinned to the future anchors: the oldest snapshot of each
+*bucket*, ``retain_seconds / ANCHORS`` of wall time saved (``saved_at``), or, with a size
+limit alone, ``1 / ANCHORS`` of the scans that fit in it (by seq). Buckets are fixed, so a
+snapshot kept as a future anchor stays kept until the cut passes it, and the cut moves a
+bucket at a time: the journal keeps at most ``(1 + 1 / ANCHORS)`` times the retention
+plus one snapshot interval, and reaches that bound within one retention period (a
+thinning that spaced anchors relative to the scans held at each run drifted: the anchors
+it kept were spaced unevenly, and the scans held, the file's high-water mark, crept up
+for as long as the soak benchmark ran). Snapshots older than the anchor are deleted.
 
 Bytes. ``retain_bytes`` bounds the journal file's used pages (scans, their index,
 quarantine and snapshots; the ``-wal`` file is bounded apart by ``journal_size_limit``).
@@ -42,6 +48,7 @@ offline does that).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass
 
@@ -117,33 +124,43 @@ def plan_retention(
     past: list[int] = []
     if policy.retain_seconds is not None:
         past += [s.seq for s in usable if s.saved_at <= now - policy.retain_seconds]
-    if policy.retain_bytes is not None and used_bytes > policy.retain_bytes:
+    fitting = None  # scans that fit in retain_bytes
+    if policy.retain_bytes is not None:
         held = max(1, last_seq - deleted_through)
         snapshot_bytes = sum(s.nbytes for s in snapshots)
         per_scan = max(1.0, (used_bytes - snapshot_bytes) / held)
-        keep = max(0, int((policy.retain_bytes - snapshot_bytes) / per_scan))
-        past += [s.seq for s in usable if s.seq <= last_seq - keep]
+        fitting = max(0, int((policy.retain_bytes - snapshot_bytes) / per_scan))
+        if used_bytes > policy.retain_bytes:
+            past += [s.seq for s in usable if s.seq <= last_seq - fitting]
     cut = max(past, default=0)
     newest = {s.seq for s in usable[-policy.keep_snapshots :]}
     # the anchor: the snapshot replays start from (the new cut, else the one kept at the
-    # last cut), kept whatever the spacing
+    # last cut), kept whatever the buckets
     anchor = cut
     if cut <= deleted_through and deleted_through > 0 and usable:
         anchor = usable[0].seq
     anchor = anchor if anchor > 0 else -1
-    base = max(cut, deleted_through)
-    gap = max(1, (last_seq - base) // ANCHORS)
-    kept, previous = set(newest), base
+    kept, buckets = set(newest), set()
     for info in usable:
         if info.seq < cut or info.seq in newest:
             continue
-        if info.seq == anchor or info.seq - previous >= gap:
+        bucket = _bucket(info, policy, fitting)
+        if info.seq == anchor or bucket not in buckets:
             kept.add(info.seq)
-            previous = info.seq
+            buckets.add(bucket)
     if policy.retain_seconds is None and policy.retain_bytes is None:
         kept = newest  # no scan limit: as without retention, the newest snapshots only
     drop = tuple(s.seq for s in snapshots if s.seq not in kept)
     return RetentionPlan(cut if cut > deleted_through else 0, drop)
+
+
+def _bucket(info: SnapshotInfo, policy: RetentionPolicy, fitting: int | None) -> int:
+    """The fixed bucket of snapshot ``info`` among the future anchors (module docstring):
+    by wall time saved under an age limit, else by seq (``fitting``: the scans that fit
+    in the size limit)."""
+    if policy.retain_seconds is not None:
+        return math.floor(info.saved_at / (policy.retain_seconds / ANCHORS))
+    return info.seq // max(1, (fitting or 0) // ANCHORS)
 
 
 def apply_retention(

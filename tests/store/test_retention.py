@@ -72,14 +72,33 @@ def test_the_cut_is_the_newest_snapshot_past_the_age_limit_and_anchors_are_thinn
     plan = plan_retention(snaps, 2000, 0, 10_000, now=1200.0, policy=policy)
     assert plan.cut == 1000  # saved at 1100 <= 1200 - 100; seq 1100 saved at 1110 is not
     kept = sorted({s.seq for s in snaps} - set(plan.drop_snapshots))
-    assert kept[0] == 1000 and kept[-2:] == [1900, 2000]
-    assert len(kept) <= ANCHORS + 3  # the anchor, spread ones, the newest two
-    assert all(
-        b - a >= (2000 - 1000) // ANCHORS for a, b in zip(kept[:-3], kept[1:-2], strict=True)
-    )
+    # buckets of 100 / ANCHORS = 25 s: the first saved in [1125, 1150), [1150, 1175),
+    # [1175, 1200), the anchor (bucket [1100, 1125)) and the newest two
+    assert ANCHORS == 4 and kept == [1000, 1300, 1500, 1800, 1900, 2000]
     # none past retention: nothing deleted, the spread snapshots stay as future anchors
     young = plan_retention(snaps, 2000, 0, 10_000, now=1050.0, policy=policy)
     assert young.cut == 0 and 1900 not in young.drop_snapshots
+
+
+def test_future_anchors_stay_kept_so_the_scans_held_stop_at_the_bound() -> None:
+    """A steady stream: a snapshot every 10 s (100 scans), retention 300 s, planned after
+    each save. An anchor once kept is kept until the cut passes it, and the scans held
+    never exceed (1 + 1 / ANCHORS) x the retention plus one snapshot interval."""
+    policy = RetentionPolicy(retain_seconds=300.0, keep_snapshots=2)
+    stored: list[SnapshotInfo] = []
+    deleted_through, held_max, anchors = 0, 0, set()
+    for k in range(1, 400):
+        now, last_seq = 10.0 * k + 0.5, 100 * k
+        stored.append(SnapshotInfo(last_seq, 10.0 * k, 100))
+        plan = plan_retention(stored, last_seq, deleted_through, 0, now, policy)
+        deleted_through = max(deleted_through, plan.cut)
+        stored = [s for s in stored if s.seq not in plan.drop_snapshots]
+        kept = {s.seq for s in stored}
+        assert {a for a in anchors if a >= deleted_through} <= kept
+        anchors = kept - {s.seq for s in stored[-2:]}  # not only the newest two
+        if k > 60:  # past the first retention period
+            held_max = max(held_max, last_seq - deleted_through)
+    assert held_max <= 100 * (300 / 10) * (1 + 1 / ANCHORS) + 100
 
 
 def test_the_size_limit_cuts_to_the_snapshot_that_keeps_it_and_no_limit_deletes_no_scan() -> None:
