@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from mapserver.cli.args import xy_pair
+from mapserver.cli.args import add_dataclass_args, dataclass_from_args, xy_pair
 from mapserver.cli.progress import ScanProgress
 from mapserver.cli.recording_args import add_recording_args, recording_options_from_args
 from mapserver.core.belief import BeliefGrid
@@ -18,82 +18,19 @@ from mapserver.store.recordings import Recording, open_recording
 from mapserver.store.recordings.grid_fit import fit_grid
 
 
-def _range_or_none(text: str) -> float | None:
-    """argparse type for ``--no-return-range``: metres, or ``none`` (no cap)."""
-    if text.strip().lower() == "none":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected metres or 'none', got {text!r}") from None
-
-
 def add_sensor_model_args(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
-    """The sensor-model and decay flags shared by ``map build``, ``evaluate`` and the
-    server; returns their group (``map build`` adds ``--policy`` to it)."""
-    d, dd = SensorModel(), DecayParams()
+    """The sensor-model and decay flags shared by ``map build`` and ``evaluate``, one per
+    field of ``SensorModel`` and ``DecayParams`` (``add_dataclass_args``: a new field
+    brings its flag); returns their group (``map build`` adds ``--policy`` to it)."""
     group = parser.add_argument_group("sensor model and policy")
-    group.add_argument("--p-hit", type=float, default=d.p_hit, help="P(occupied | return)")
-    group.add_argument("--p-miss", type=float, default=d.p_miss, help="P(occupied | pass)")
-    group.add_argument("--clamp-min", type=float, default=d.clamp_min, help="log-odds floor")
-    group.add_argument("--clamp-max", type=float, default=d.clamp_max, help="log-odds ceiling")
-    group.add_argument(
-        "--occupied-threshold", type=float, default=d.occupied_threshold, help="probability"
-    )
-    group.add_argument("--free-threshold", type=float, default=d.free_threshold, help="probability")
-    no_return = "P(occupied | a no-return beam passes), in [p-miss, 0.5]; 0.5: ignore them"
-    group.add_argument("--p-miss-no-return", type=float, default=d.p_miss_no_return, help=no_return)
-    reach = f"[m] how far a no-return beam clears ({d.no_return_range}; none: to range_max)"
-    group.add_argument(
-        "--no-return-range", type=_range_or_none, default=d.no_return_range, help=reach
-    )
-    group.add_argument(
-        "--fill-between-beams",
-        action=argparse.BooleanOptionalAction,
-        default=d.fill_between_beams,
-        help="clear the cells between two neighbouring returns that neither beam crosses "
-        "(log-odds policies; docs/clearing.md)",
-    )
-    group.add_argument(
-        "--guard-glancing-faces",
-        action=argparse.BooleanOptionalAction,
-        default=d.guard_glancing_faces,
-        help="a return stops clearing a cell short of the surface it hit, square to it "
-        "(log-odds policies; docs/clearing.md)",
-    )
-    group.add_argument(
-        "--half-life-occupied",
-        type=float,
-        default=dd.half_life_occupied,
-        help="[s] fade half life of occupied evidence (decay policy)",
-    )
-    group.add_argument(
-        "--half-life-free",
-        type=float,
-        default=dd.half_life_free,
-        help="[s] fade half life of free evidence (decay policy)",
-    )
+    for domain in (SensorModel, DecayParams):
+        add_dataclass_args(group, domain)
     return group
 
 
 def sensor_model_from_args(args: argparse.Namespace) -> tuple[SensorModel, DecayParams]:
     """Build the validated model objects; ValueError names the bad flag's field."""
-    model = SensorModel(
-        p_hit=args.p_hit,
-        p_miss=args.p_miss,
-        clamp_min=args.clamp_min,
-        clamp_max=args.clamp_max,
-        occupied_threshold=args.occupied_threshold,
-        free_threshold=args.free_threshold,
-        p_miss_no_return=args.p_miss_no_return,
-        no_return_range=args.no_return_range,
-        fill_between_beams=args.fill_between_beams,
-        guard_glancing_faces=args.guard_glancing_faces,
-    )
-    decay = DecayParams(
-        half_life_occupied=args.half_life_occupied, half_life_free=args.half_life_free
-    )
-    return model, decay
+    return dataclass_from_args(SensorModel, args), dataclass_from_args(DecayParams, args)
 
 
 def add_grid_args(parser: argparse.ArgumentParser) -> None:
@@ -134,7 +71,7 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
         "--policy",
         choices=[p.value for p in Policy],
         default=Policy.DECAY.value,
-        help="how evidence accumulates and ages (default: decay)",
+        help="how evidence accumulates and ages",
     )
     build.set_defaults(handler=run_map_build)
 

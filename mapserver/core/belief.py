@@ -25,7 +25,7 @@ from mapserver.core import fusion_kernel as kernel
 from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Pose2D, Scan
-from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
 
 
 class CellState(IntEnum):
@@ -153,16 +153,15 @@ class BeliefGrid:
         )
         # Fixed argument types (an int origin or clamp would be a new signature to
         # compile): every grid runs the kernels ``load_fusion_kernels`` loads.
-        g, d = geometry, self.decay
+        g = geometry
         self._kernel_grid = kernel.KernelGrid(
-            int(g.width), int(g.height), float(g.origin_x), float(g.origin_y), float(g.resolution)
+            width=int(g.width),
+            height=int(g.height),
+            origin_x=float(g.origin_x),
+            origin_y=float(g.origin_y),
+            resolution=float(g.resolution),
         )
-        self._kernel_model = kernel.KernelModel(
-            *(float(v) for v in (m.l_hit, m.l_miss, m.l_miss_no_return, m.l0, m.clamp_min)),
-            float(m.clamp_max), int(POLICY_CODES[self.policy]),
-            float(d.half_life_occupied), float(d.half_life_free), float(m.l_void),
-            int(m.confirm_hits), float(m.confirm_after),
-        )  # fmt: skip
+        self._kernel_model = kernel.kernel_model(m, self.decay, self.policy)
         self.stamp = -math.inf  # the latest stamp fused: the map's "now"
         self.scans_fused = 0
 

@@ -38,6 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
 from mapserver.core.traversal import cell_of, clipped_cells, line_next, line_start
 
 
@@ -70,6 +71,26 @@ class KernelModel(NamedTuple):
     l_void: float
     confirm_hits: int
     confirm_after: float
+
+
+def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> KernelModel:
+    """The update rule the kernels run for ``model`` under ``policy`` with ``decay``, each
+    field by name, typed as the kernels are compiled for (an int clamp would be a new
+    signature to compile): a new rule adds its field to ``KernelModel`` and its line here."""
+    return KernelModel(
+        l_hit=float(model.l_hit),
+        l_miss=float(model.l_miss),
+        l_miss_no_return=float(model.l_miss_no_return),
+        l0=float(model.l0),
+        clamp_min=float(model.clamp_min),
+        clamp_max=float(model.clamp_max),
+        policy=int(POLICY_CODES[policy]),
+        half_life_occupied=float(decay.half_life_occupied),
+        half_life_free=float(decay.half_life_free),
+        l_void=float(model.l_void),
+        confirm_hits=int(model.confirm_hits),
+        confirm_after=float(model.confirm_after),
+    )
 
 
 class KernelBuffers(NamedTuple):
@@ -116,10 +137,13 @@ MARK_NO_RETURN = 1  # crossed only by no-return beams (weak free evidence)
 MARK_FREE = 2  # crossed by a beam that returned
 MARK_HIT = 3
 
-POLICY_DECAY = 0
-POLICY_BINARY = 1
-POLICY_STICKY = 2
-POLICY_DUAL = 3
+# The policy codes, from the one table (``sensor_model.POLICY_CODES``), as the module-level
+# ints numba compiles in as constants. The cached kernels hold them: a change to the table
+# needs this file touched (or the cache cleared) to take effect.
+POLICY_DECAY = POLICY_CODES[Policy.DECAY]
+POLICY_BINARY = POLICY_CODES[Policy.BINARY]
+POLICY_STICKY = POLICY_CODES[Policy.STICKY]
+POLICY_DUAL = POLICY_CODES[Policy.DUAL]
 
 # A cell's history under POLICY_DUAL (one byte): 0 .. HISTORY_STRUCTURE - 1 a *new* cell,
 # counting the scans in a row that hit it (its evidence fades as decay's does);

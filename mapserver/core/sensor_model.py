@@ -36,8 +36,9 @@ Nav2's ``inf_is_valid`` + ``raytrace_max_range``); docs/no-return.md has the ari
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import StrEnum
+from typing import Any
 
 from mapserver.core.errors import FieldError
 
@@ -83,7 +84,8 @@ class Policy(StrEnum):
             raise FieldError("policy", value, f"must be one of {choices}") from None
 
 
-# Kernel codes for the policies (numba kernels take integers, not enums).
+# Kernel codes for the policies (numba kernels take integers, not enums): the one table;
+# ``fusion_kernel``'s ``POLICY_*`` constants are read from it.
 POLICY_CODES = {Policy.DECAY: 0, Policy.BINARY: 1, Policy.STICKY: 2, Policy.DUAL: 3}
 
 
@@ -97,10 +99,16 @@ def _probability(name: str, value: float) -> float:
 class SensorModel:
     """Inverse sensor model and state thresholds; validated on construction.
 
+    Each field's description below (``name: text``, continued on more indented lines) is
+    also its ``--name`` flag's help in ``fleetmap map build`` and ``evaluate``.
+
     p_hit: probability that a cell holding a return is occupied (> 0.5).
     p_miss: probability that a cell a beam passes through is occupied (< 0.5).
     prior: occupancy probability before any evidence (L0 = logit(prior)).
-    clamp_min, clamp_max: [log-odds] bounds, clamp_min < L0 < clamp_max.
+    clamp_min: [log-odds] floor of a cell's log-odds (below L0), so that a wrong free
+        cell can recover.
+    clamp_max: [log-odds] ceiling of a cell's log-odds (above L0), so that a wrong
+        occupied cell can recover.
     occupied_threshold: a cell with p > this is occupied (> prior).
     free_threshold: a cell with p < this is free (< prior); between the two it is unknown,
         so evidence fading toward the prior can only turn a known cell unknown.
@@ -252,10 +260,15 @@ class DecayParams:
     """Freshness decay of the ``decay`` policy.
 
     Evidence fades toward the prior with the time since the cell was last observed:
-    ``L(t) = L0 + (L - L0) * 2 ** (-(t - last_observed) / half_life)``, with
-    ``half_life_occupied`` [s] for evidence above the prior and ``half_life_free`` [s]
-    below it. A cell whose faded evidence ``|L(t) - L0|`` is below ``fade_bound``
-    [log-odds] is unknown again, as if never observed.
+    ``L(t) = L0 + (L - L0) * 2 ** (-(t - last_observed) / half_life)``. Each field's
+    description below is also its ``--name`` flag's help (as ``SensorModel``'s).
+
+    half_life_occupied: [s] fade half life of evidence above the prior (the ``decay``
+        policy, and a new cell's under ``dual``).
+    half_life_free: [s] fade half life of evidence below the prior (as above).
+    fade_bound: [log-odds] a cell whose faded evidence (its distance from the prior) is
+        below this is unknown again, as if never observed; below the thresholds'
+        distance from the prior.
     """
 
     half_life_occupied: float = 30.0
@@ -267,3 +280,42 @@ class DecayParams:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise FieldError(name, value, "must be a positive finite number")
+
+
+# ---------------------------------------------------------------------------- old records
+class Recorded(str):
+    """In ``LEGACY_SENSOR_MODEL``: the value the old record itself holds under this name."""
+
+    __slots__ = ()
+
+
+_DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(SensorModel)}
+
+LEGACY_SENSOR_MODEL: tuple[dict[str, Any], ...] = (
+    # Before no-return beams had evidence of their own (docs/no-return.md) a journal was
+    # fused with no-return beams as strong as returns (p_miss) out to range_max (None).
+    {"p_miss_no_return": Recorded("p_miss"), "no_return_range": None},
+    # Before the fill between beams and the guard of glancing faces (docs/clearing.md):
+    # beams only.
+    {"fill_between_beams": False, "guard_glancing_faces": False},
+    # Before the ``dual`` policy (docs/dual.md), which alone reads these: today's defaults.
+    {name: _DEFAULTS[name] for name in ("void_threshold", "confirm_hits", "confirm_after")},
+)
+"""The values a sensor model recorded before a field existed was fused under, one
+mapping per change that added fields, oldest first (``fill_legacy_sensor_model``)."""
+
+
+def fill_legacy_sensor_model(model: dict[str, Any]) -> dict[str, Any]:
+    """Fill in, in place, the fields an old record of a sensor model (a data dir's map
+    settings) lacks, with the values its journal was fused under (``LEGACY_SENSOR_MODEL``),
+    so that the dir opens under those settings, not today's defaults; returns ``model``.
+
+    A field the record holds is kept. A change whose values refer to a field the record
+    does not hold (``Recorded``) fills nothing: such a record was not written by a server.
+    """
+    for added in LEGACY_SENSOR_MODEL:
+        sources = [value for value in added.values() if isinstance(value, Recorded)]
+        if all(source in model for source in sources):
+            for name, value in added.items():
+                model.setdefault(name, model[value] if isinstance(value, Recorded) else value)
+    return model

@@ -60,7 +60,7 @@ from mapserver.core.queries import (
     sample_cells,
 )
 from mapserver.core.scan import Scan
-from mapserver.core.sensor_model import SensorModel
+from mapserver.core.sensor_model import fill_legacy_sensor_model
 from mapserver.core.text import clip, quote
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
@@ -678,26 +678,16 @@ def _check_map_settings(data_dir: Path, current: dict[str, Any]) -> None:
 def read_map_settings(data_dir: Path) -> dict[str, Any]:
     """The map settings recorded in a data dir (for ``fleetmap replay``).
 
-    A data dir written before no-return beams had their own evidence (docs/no-return.md)
-    records no ``p_miss_no_return`` or ``no_return_range``: its journal was fused with
-    no-return beams as strong as returns (``p_miss``) out to range_max (None), so those are
-    the values filled in. Such a dir opens under those settings, not the new defaults.
-    One written before the fill between beams and the guard of glancing faces
-    (docs/clearing.md) records no ``fill_between_beams`` or ``guard_glancing_faces``:
-    false is filled in for each. One written before the ``dual`` policy records no
-    ``void_threshold``, ``confirm_hits`` or ``confirm_after``, which only ``dual``
-    reads: today's defaults are filled in.
+    A data dir written before a sensor-model field existed records no value for it: the
+    value its journal was fused under is filled in (``fill_legacy_sensor_model``: e.g.
+    before no-return beams had their own evidence, docs/no-return.md, they were as strong
+    as returns, ``p_miss``, out to range_max), so such a dir opens under those settings,
+    not the new defaults.
     """
     recorded = json.loads((Path(data_dir) / MAP_SETTINGS_FILE).read_text())
     model = recorded.get("sensor_model")
-    if isinstance(model, dict) and "p_miss" in model:
-        model.setdefault("p_miss_no_return", model["p_miss"])
-        model.setdefault("no_return_range", None)
     if isinstance(model, dict):
-        model.setdefault("fill_between_beams", False)
-        model.setdefault("guard_glancing_faces", False)
-        for name in ("void_threshold", "confirm_hits", "confirm_after"):  # dual's alone
-            model.setdefault(name, getattr(SensorModel(), name))
+        fill_legacy_sensor_model(model)
     return recorded
 
 

@@ -1,5 +1,7 @@
 """``fleetmap map build``: files written, figures printed, bad input refused whole."""
 
+import argparse
+import dataclasses
 import json
 import math
 import subprocess
@@ -12,12 +14,14 @@ import yaml
 from conftest import make_scan
 
 import mapserver.store.offline as offline
+from mapserver.cli.args import add_dataclass_args, field_docs
+from mapserver.cli.map_build import sensor_model_from_args
 from mapserver.core import fusion_kernel
 from mapserver.core.belief import BeliefGrid, load_fusion_kernels
 from mapserver.core.geometry import GridGeometry
-from mapserver.core.sensor_model import SensorModel
+from mapserver.core.sensor_model import DecayParams, SensorModel
 from mapserver.store.scanfile import write_scan_file
-from scenarios.cli.main import main
+from scenarios.cli.main import build_parser, main
 
 ARGS = ["--width", "12", "--height", "3", "--resolution", "1.0", "--origin", "0,0"]
 
@@ -168,3 +172,119 @@ def test_the_console_command_runs_map_build(scan_file, tmp_path):
     )  # fmt: skip
     assert json.loads(proc.stdout.splitlines()[-1])["scans"] == 3
     assert sorted(p.name for p in out.iterdir()) == ["logodds.npy", "map.pgm", "map.yaml"]
+
+
+def map_build_parser():
+    """The ``map build`` subparser of the ``fleetmap`` command."""
+    for action in build_parser()._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices["map"]._actions:
+                if isinstance(sub, argparse._SubParsersAction):
+                    return sub.choices["build"]
+    raise AssertionError("no map build")
+
+
+def flag(name):
+    return "--" + name.replace("_", "-")
+
+
+@pytest.mark.parametrize("domain", [SensorModel, DecayParams])
+def test_every_model_field_has_a_map_build_flag_with_its_default(domain):
+    actions = {a.dest: a for a in map_build_parser()._actions}
+    for field in dataclasses.fields(domain):
+        action = actions.get(field.name)
+        assert action is not None, f"{domain.__name__}.{field.name} has no map build flag"
+        assert flag(field.name) in action.option_strings
+        assert action.default == field.default
+        assert action.help  # from the field's docstring entry
+
+
+def test_map_build_help_shows_each_flags_default():
+    text = map_build_parser().format_help()
+    blocks = {}  # each option's first line's flag -> its whole entry, joined
+    for line in text.splitlines():
+        if line.startswith("  -"):
+            name = line.split()[0].rstrip(",")
+            blocks[name] = []
+        if blocks:
+            blocks[name].append(line.strip())
+    for field in [*dataclasses.fields(SensorModel), *dataclasses.fields(DecayParams)]:
+        entry = " ".join(blocks[flag(field.name)])
+        assert entry.endswith(f"(default: {field.default})"), entry
+    assert " ".join(blocks["--confirm-hits"]).startswith("--confirm-hits CONFIRM_HITS under dual")
+    assert "--no-return-range NO_RETURN_RANGE|none" in text
+    assert "--fill-between-beams, --no-fill-between-beams" in text
+
+
+@pytest.mark.parametrize(
+    "flags, field, value",
+    [
+        (["--confirm-hits", "5"], "confirm_hits", 5),
+        (["--confirm-after", "0.5"], "confirm_after", 0.5),
+        (["--void-threshold", "0.1"], "void_threshold", 0.1),
+        (["--prior", "0.45"], "prior", 0.45),
+        (["--clamp-min", "-4"], "clamp_min", -4.0),
+        (["--no-return-range", "None"], "no_return_range", None),
+        (["--no-guard-glancing-faces"], "guard_glancing_faces", False),
+        (["--fade-bound", "0.1"], "fade_bound", 0.1),
+        (["--half-life-free", "60"], "half_life_free", 60.0),
+    ],
+)
+def test_a_flag_value_reaches_the_model(flags, field, value):
+    args = build_parser().parse_args(["map", "build", "scans.jsonl", *flags])
+    model, decay = sensor_model_from_args(args)
+    got = getattr(decay if field in DecayParams.__dataclass_fields__ else model, field)
+    assert got == value and type(got) is type(value)
+    defaults = sensor_model_from_args(build_parser().parse_args(["map", "build", "s.jsonl"]))
+    assert defaults == (SensorModel(), DecayParams())
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--confirm-hits", "2.5"], "argument --confirm-hits: invalid int value: '2.5'"),
+        (["--p-hit", "high"], "argument --p-hit: invalid float value: 'high'"),
+        (["--no-return-range", "far"], "argument --no-return-range: expected metres or 'none'"),
+        (["--fill-between-beams", "yes"], "unrecognized arguments: yes"),
+    ],
+)
+def test_a_bad_flag_value_is_a_usage_error_naming_the_flag(scan_file, flags, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["map", "build", str(scan_file), *ARGS, *flags])
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_flag_the_model_refuses_names_its_field(scan_file, tmp_path, capsys):
+    out = tmp_path / "map"
+    bad_hits = ["--confirm-hits", "0"]
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), *bad_hits]) == 2
+    assert "confirm_hits must be a whole number of scans, 1 to 253" in capsys.readouterr().err
+    bad_bound = ["--fade-bound", "1"]
+    assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), *bad_bound]) == 2
+    assert "decay.fade_bound must be below the thresholds' distance" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_field_without_a_docstring_entry_gets_no_flag_but_an_error():
+    @dataclasses.dataclass(frozen=True)
+    class Rule:
+        """A rule.
+
+        low, high: [m] the ``band``, *inclusive*.
+        count: scans, continued
+            on a second line.
+        """
+
+        low: float = 0.0
+        high: float = 1.0
+        count: int = 3
+        strict: bool = False
+
+    assert field_docs(Rule) == {
+        "low": "[m] the band, inclusive.",
+        "high": "[m] the band, inclusive.",
+        "count": "scans, continued on a second line.",
+    }
+    with pytest.raises(TypeError, match="Rule.strict: a flag needs a docstring entry"):
+        add_dataclass_args(argparse.ArgumentParser(), Rule)
