@@ -176,6 +176,7 @@ class BeliefGrid:
             return []
         params = np.empty(len(scans), dtype=kernel.SCAN_PARAMS)
         fill_margin, glance_margin = self.fill_margin, self.glance_margin
+        release_margin = self.sensor_model.release_margin if self.policy is Policy.DUAL else 0.0
         for k, scan in enumerate(scans):
             std = scan.pose_std
             params[k] = (
@@ -192,6 +193,7 @@ class BeliefGrid:
                 std.yaw**2 if std is not None else 0.0,
                 fill_margin,
                 glance_margin,
+                release_margin,
             )
         offsets = np.zeros(len(scans) + 1, dtype=np.int64)
         np.cumsum([s.beam_count for s in scans], out=offsets[1:])
@@ -328,7 +330,7 @@ class BeliefGrid:
             return observed
         unfaded = np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound
         if self.fades_selectively:  # structure and void cells never fade
-            unfaded |= history >= kernel.HISTORY_STRUCTURE
+            unfaded |= history >= kernel.HISTORY_STRUCTURE_SEEN
         return observed & unfaded
 
     def probability_at(self, stamp: float | None = None, box: CellBox | None = None) -> np.ndarray:
@@ -385,7 +387,8 @@ class BeliefGrid:
         """(height, width) bool: cells confirmed structure (``dual``; all False otherwise)."""
         if self.policy is not Policy.DUAL:
             return np.zeros(self.geometry.shape, dtype=bool)
-        return self._history.reshape(self.geometry.shape) == kernel.HISTORY_STRUCTURE
+        history = self._history.reshape(self.geometry.shape)
+        return (history == kernel.HISTORY_STRUCTURE) | (history == kernel.HISTORY_STRUCTURE_SEEN)
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         """Copies of the state arrays named by ``state_names``, each (height, width)."""

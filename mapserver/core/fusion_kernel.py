@@ -127,6 +127,7 @@ SCAN_PARAMS = np.dtype(
         ("var_yaw", np.float64),
         ("fill_margin", np.float64),  # [m] of the fill between beams, <= 0: none
         ("glance_margin", np.float64),  # [m] of the cut of glancing returns, <= 0: none
+        ("release_margin", np.float64),  # [m] a MARK_CLEAR pass ends beyond, <= 0: none
     ]
 )
 """One scan's parameters for ``fuse_batch``, a record per scan."""
@@ -135,7 +136,8 @@ SCAN_PARAMS = np.dtype(
 MARK_NONE = 0
 MARK_NO_RETURN = 1  # crossed only by no-return beams (weak free evidence)
 MARK_FREE = 2  # crossed by a beam that returned
-MARK_HIT = 3
+MARK_CLEAR = 3  # crossed by a return that ends at least ``release_margin`` beyond it
+MARK_HIT = 4
 
 # The policy codes, from the one table (``sensor_model.POLICY_CODES``), as the module-level
 # ints numba compiles in as constants. The cached kernels hold them: a change to the table
@@ -145,8 +147,10 @@ POLICY_BINARY = POLICY_CODES[Policy.BINARY]
 POLICY_STICKY = POLICY_CODES[Policy.STICKY]
 POLICY_DUAL = POLICY_CODES[Policy.DUAL]
 
-# A cell's history under POLICY_DUAL (one byte): 0 .. HISTORY_STRUCTURE - 1 a *new* cell,
+# A cell's history under POLICY_DUAL (one byte): 0 .. HISTORY_NEW_MAX a *new* cell,
 # counting the scans in a row that hit it (its evidence fades as decay's does);
+HISTORY_NEW_MAX = 252  # the largest count (confirm_hits <= this)
+HISTORY_STRUCTURE_SEEN = 253  # structure whose last observation saw through it: no fade
 HISTORY_STRUCTURE = 254  # hit by ``confirm_hits`` scans in a row: structure, no fade
 HISTORY_VOID = 255  # seen free for good (log-odds below l_void once): hits are transient
 
@@ -158,16 +162,26 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
     nothing, leaves it) and is structure at ``confirm_hits``, or at once when it
     ``stayed`` (hit again, with no pass since, at least ``confirm_after`` [s] after it was
-    last observed: a recording that scans slowly); structure stays."""
+    last observed: a recording that scans slowly). Structure stays structure unless
+    two scans in a row see clear through it (``MARK_CLEAR``: a return that ends at least
+    ``release_margin`` beyond the cell, so range noise and pose error at a face do not
+    count; passes nearer their endpoint and no-return beams leave the count, a hit
+    resets it; DUFOMap's shortened rays, Duberg et al., RA-L 2024): the first makes it
+    ``HISTORY_STRUCTURE_SEEN``, a hit makes it structure again, a second pass makes it
+    a new cell (``apply_marks`` drops what it held: it was a pod or a person that left)."""
     if value < l_void:
         return HISTORY_VOID
-    if history >= HISTORY_STRUCTURE:
-        return history
+    if history == HISTORY_STRUCTURE:
+        return HISTORY_STRUCTURE_SEEN if mark == MARK_CLEAR else history
+    if history == HISTORY_STRUCTURE_SEEN:
+        if mark == MARK_HIT:
+            return HISTORY_STRUCTURE
+        return 0 if mark == MARK_CLEAR else history
     if stayed:
         return HISTORY_STRUCTURE
     if mark == MARK_HIT:
         return HISTORY_STRUCTURE if history + 1 >= confirm_hits else history + 1
-    if mark == MARK_FREE:
+    if mark == MARK_FREE or mark == MARK_CLEAR:
         return 0
     return history
 
@@ -197,7 +211,9 @@ def mark_scan(marks, grid, scan, ranges, box):
     beam clears (<= 0: no-return beams mark nothing); fill_margin: [m] how far the
     fill between beams keeps from the surface two neighbouring returns outline (<= 0:
     no fill; see ``fill_between``); glance_margin: [m] how near, square to the surface
-    it hit, a return clears (<= 0: up to its endpoint; see ``glance_cutoff``).
+    it hit, a return clears (<= 0: up to its endpoint; see ``glance_cutoff``);
+    release_margin: [m] a return also marks ``MARK_CLEAR`` the cells it crosses wholly
+    that far or farther short of its endpoint (and of its glance cut); <= 0: none.
     box (int64[4]) receives a bounding box of the marked cells (col_min, row_min, col_max,
     row_max), inclusive (empty, col_min > col_max, when no beam reached the map).
     """
@@ -208,6 +224,7 @@ def mark_scan(marks, grid, scan, ranges, box):
     range_min, range_max = scan.range_min, scan.range_max
     clearing_range = scan.clearing_range
     fill_margin, glance_margin = scan.fill_margin, scan.glance_margin
+    release_margin = scan.release_margin
     cmin = width
     rmin = height
     cmax = -1
@@ -279,11 +296,18 @@ def mark_scan(marks, grid, scan, ranges, box):
             if not t_cut > t0:
                 continue
             if t_cut < t1:
-                cc = cell_of(sensor_x + t_cut * dx, origin_x, inv_res, width)
-                rc = cell_of(sensor_y + t_cut * dy, origin_y, inv_res, height)
-                major = abs(cc - c0) if abs(c1 - c0) >= abs(r1 - r0) else abs(rc - r0)
-                max_cells = major + 1
+                max_cells = _cells_to(t_cut, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1)
         _trace(marks, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
+        if is_return and release_margin > 0.0:  # the prefix that ends release_margin short
+            t_clear = 1.0 - max(cut, release_margin) / r
+            if t_clear > t0:
+                clear_cells = -1
+                if t_clear < t1:
+                    # not the cell of that point: part of it is nearer the endpoint
+                    clear_cells = (
+                        _cells_to(t_clear, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1) - 1
+                    )
+                _trace(marks, width, c0, r0, c1, r1, False, MARK_CLEAR, clear_cells)
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
@@ -291,6 +315,17 @@ def mark_scan(marks, grid, scan, ranges, box):
     box[1] = rmin
     box[2] = cmax
     box[3] = rmax
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cells_to(t, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1):
+    """How many cells of the line (c0, r0) -> (c1, r1) reach the beam's point at ``t``
+    (0 at the sensor, 1 at the endpoint ``(sensor_x + dx, sensor_y + dy)`` [m]): a prefix
+    of it, counted along its major axis (``_trace``'s ``max_cells``)."""
+    inv_res = 1.0 / grid.resolution
+    cc = cell_of(sensor_x + t * dx, grid.origin_x, inv_res, grid.width)
+    rc = cell_of(sensor_y + t * dy, grid.origin_y, inv_res, grid.height)
+    return (abs(cc - c0) if abs(c1 - c0) >= abs(r1 - r0) else abs(rc - r0)) + 1
 
 
 GLANCE_CAP_CELLS = 10.0
@@ -510,7 +545,8 @@ def apply_marks(buffers, box, grid, scan, model):
                 if policy == POLICY_BINARY or (dual and history[idx] == HISTORY_VOID):
                     log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
                 else:
-                    ev = ev_hit if mark == MARK_HIT else (ev_free if mark == MARK_FREE else ev_nr)
+                    passed = mark == MARK_FREE or mark == MARK_CLEAR
+                    ev = ev_hit if mark == MARK_HIT else (ev_free if passed else ev_nr)
                     if weighted:
                         r = idx // width  # a word's cell may be in another row
                         dxc = origin_x + (idx - r * width + 0.5) * resolution - sensor_x
@@ -532,8 +568,18 @@ def apply_marks(buffers, box, grid, scan, model):
                         dev = value - l0
                         value = l0 + dev * (f_occupied if dev > 0.0 else f_free)
                     stayed = stayed and value > l0  # no pass since: it stayed
-                    if dual and mark == MARK_FREE and value > l0 and fading:
-                        value = l0  # a new cell seen through: what it held was transient
+                    # A new cell seen through, or structure seen through twice in a
+                    # row: what it held was transient (``dual_history``).
+                    if (
+                        dual
+                        and passed
+                        and value > l0
+                        and (
+                            fading
+                            or (history[idx] == HISTORY_STRUCTURE_SEEN and mark == MARK_CLEAR)
+                        )
+                    ):
+                        value = l0
                     if policy == POLICY_STICKY:
                         value += ev
                     else:
@@ -612,7 +658,7 @@ def faded_log_odds(
 @njit(cache=True, nogil=True, inline="always")
 def fades_by_history(history):
     """Whether a cell of this ``POLICY_DUAL`` history fades: only a new one does."""
-    return history < HISTORY_STRUCTURE
+    return history < HISTORY_STRUCTURE_SEEN
 
 
 @njit(cache=True, nogil=True)

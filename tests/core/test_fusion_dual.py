@@ -1,7 +1,8 @@
 """The ``dual`` policy: structure and transients told apart by the free-space history.
 
 One row of 1 m cells with the sensor in cell 0 looking along +x (as in
-test_fusion_log_odds): range 3.5 ends in cell 4, range 9.0 passes it. Default model:
+test_fusion_log_odds): range 3.5 ends in cell 4, range 9.0 passes it (ending 4 m past
+it: a clear pass, which can release structure). Default model:
 +0.847 per hit, -0.405 per pass, clamp +-5, void below logit(0.05) = -2.944.
 """
 
@@ -18,6 +19,8 @@ from mapserver.core.sensor_model import Policy, SensorModel, sigmoid
 
 CELL = 4
 HIT, PASS = 3.5, 9.0
+NEAR = 5.2  # a pass that ends at x = 5.7 m, in cell 5, within 1 m of cell 4
+NEAR_DEFAULT = 4.7  # ends at x = 5.2 m, within the default release_margin (0.3 m) of it
 
 
 def row_grid(model: SensorModel | None = None) -> BeliefGrid:
@@ -33,17 +36,34 @@ def state(b: BeliefGrid, stamp: float | None = None) -> CellState:
     return CellState(b.states_at(stamp)[0, CELL])
 
 
-def test_a_cell_with_no_history_keeps_the_textbook_numbers_13_passes_after_the_clamp():
-    textbook = SensorModel(p_hit=sigmoid(0.9), p_miss=sigmoid(-0.4))
+def test_structure_seen_through_near_the_end_of_beams_keeps_the_textbook_13_passes():
+    """Passes that end 0.7 m past the cell (within release_margin of it, as range noise at
+    a face does) do not release structure: the seed's clamped numbers hold for it."""
+    textbook = SensorModel(p_hit=sigmoid(0.9), p_miss=sigmoid(-0.4), release_margin=1.0)
     b = row_grid(textbook)
     fuse(b, [HIT] * 20, 0.0)
-    assert b.raw_log_odds()[0, CELL] == 5.0
+    assert b.raw_log_odds()[0, CELL] == 5.0 and b.structure_mask()[0, CELL]
     n = 0
     while b.raw_log_odds()[0, CELL] >= 0.0:
-        fuse(b, [PASS], 0.0)
+        fuse(b, [NEAR], 0.0)
         n += 1
     assert n == 13  # as the decay policy with nothing faded (test_fusion_log_odds)
     assert not b.void_mask()[0, CELL]  # L = -0.2: free of nothing, void not yet
+
+
+def test_structure_seen_clear_through_by_two_scans_in_a_row_is_released():
+    b = row_grid()
+    fuse(b, [HIT] * 20, 0.0)  # a pod stood here since the start
+    fuse(b, [PASS], 1.0)  # ends 4.5 m beyond: clear through, once
+    assert b.structure_mask()[0, CELL] and state(b) is CellState.OCCUPIED  # 5 - 0.405
+    fuse(b, [HIT, PASS], 1.1)  # a hit between: the count starts again
+    assert b.structure_mask()[0, CELL] and state(b) is CellState.OCCUPIED
+    fuse(b, [NEAR_DEFAULT], 1.2)  # a pass near its end leaves the count as it was
+    assert b.structure_mask()[0, CELL] and state(b) is CellState.OCCUPIED
+    fuse(b, [PASS], 1.3)  # the second clear pass in a row: what it held is dropped
+    assert not b.structure_mask()[0, CELL]
+    assert b.raw_log_odds()[0, CELL] == pytest.approx(math.log(0.4 / 0.6), abs=1e-6)
+    assert state(b) is CellState.UNKNOWN
 
 
 def test_a_cell_turns_void_after_8_net_passes_from_the_prior():
@@ -104,7 +124,7 @@ def test_a_new_cell_seen_through_loses_what_it_held_in_one_pass():
     assert state(b) is CellState.OCCUPIED  # 5 - 0.405
 
 
-def test_a_moved_pod_on_structure_clears_by_observation_in_11_passes():
+def test_a_moved_pod_on_structure_clears_in_two_clear_passes_then_turns_void():
     b = row_grid()
     fuse(b, [HIT] * 20, 0.0)  # a pod stood here since the start
     assert b.structure_mask()[0, CELL]
@@ -112,8 +132,8 @@ def test_a_moved_pod_on_structure_clears_by_observation_in_11_passes():
     while state(b) is CellState.OCCUPIED:
         fuse(b, [PASS], 1.0)
         passes += 1
-    assert passes == 11  # (5 - 0.619) / 0.405 = 10.8
-    fuse(b, [PASS] * 9, 1.0)  # (5 + 2.944) / 0.405 = 19.6: void after 20 passes
+    assert passes == 2  # released at the second (decay and sticky: 11 and 13+)
+    fuse(b, [PASS] * 7, 1.0)  # l0 - 8 x 0.405 < -2.944: void after 8 passes as new
     assert b.void_mask()[0, CELL]
     fuse(b, [HIT], 2.0)  # a tote set down where the pod stood: transient now
     fuse(b, [PASS], 2.1)
@@ -187,8 +207,8 @@ def test_a_slow_recording_confirms_what_stayed_where_it_was_after_a_gap():
     [
         ("void_threshold", 0.3, "must be below free_threshold (0.25)"),
         ("void_threshold", 0.0, "must be a probability strictly between 0 and 1"),
-        ("confirm_hits", 0, "must be a whole number of scans, 1 to 253"),
-        ("confirm_hits", 2.5, "must be a whole number of scans, 1 to 253"),
+        ("confirm_hits", 0, "must be a whole number of scans, 1 to 252"),
+        ("confirm_hits", 2.5, "must be a whole number of scans, 1 to 252"),
         ("confirm_after", -1.0, "must be positive seconds"),
         ("confirm_after", float("inf"), "must be positive seconds"),
     ],

@@ -259,7 +259,7 @@ def test_a_flag_the_model_refuses_names_its_field(scan_file, tmp_path, capsys):
     out = tmp_path / "map"
     bad_hits = ["--confirm-hits", "0"]
     assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), *bad_hits]) == 2
-    assert "confirm_hits must be a whole number of scans, 1 to 253" in capsys.readouterr().err
+    assert "confirm_hits must be a whole number of scans, 1 to 252" in capsys.readouterr().err
     bad_bound = ["--fade-bound", "1"]
     assert main(["map", "build", str(scan_file), *ARGS, "--out", str(out), *bad_bound]) == 2
     assert "decay.fade_bound must be below the thresholds' distance" in capsys.readouterr().err
