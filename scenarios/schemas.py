@@ -10,6 +10,7 @@ lanes, the domain classes' rules) are the loaders' alone.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -52,6 +53,19 @@ def write(folder: Path = FOLDER) -> list[Path]:
     return paths
 
 
-if __name__ == "__main__":
-    for written in write(Path(sys.argv[1]) if len(sys.argv) > 1 else FOLDER):
+def main(argv: list[str] | None = None) -> int:
+    """``python -m scenarios.schemas [FOLDER]``: rewrite the schemas; prints each path."""
+    parser = argparse.ArgumentParser(
+        prog="python -m scenarios.schemas", description="Rewrite the JSON Schemas of the files."
+    )
+    parser.add_argument(
+        "folder", nargs="?", type=Path, default=FOLDER, help=f"where to write (default: {FOLDER})"
+    )
+    args = parser.parse_args(argv)
+    for written in write(args.folder):
         print(written)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

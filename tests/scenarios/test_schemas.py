@@ -43,3 +43,13 @@ def test_the_schema_rejects_a_string_for_a_number_and_an_unknown_key() -> None:
     data["units"]["cont"] = 2
     errors = {tuple(e.path): e.validator for e in _validator("scenario").iter_errors(data)}
     assert errors == {("duration",): "type", ("units",): "additionalProperties"}
+
+
+def test_the_schema_command_writes_where_told_and_help_writes_nothing(tmp_path, capsys) -> None:
+    from scenarios.schemas import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0 and not Path("--help").exists()
+    assert main([str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"{n}.schema.json" for n in SCHEMAS)
