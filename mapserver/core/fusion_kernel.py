@@ -71,6 +71,7 @@ class KernelModel(NamedTuple):
     l_void: float
     confirm_hits: int
     confirm_after: float
+    confirm_within: float
 
 
 def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> KernelModel:
@@ -90,6 +91,7 @@ def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> Kern
         l_void=float(model.l_void),
         confirm_hits=int(model.confirm_hits),
         confirm_after=float(model.confirm_after),
+        confirm_within=float(model.confirm_within),
     )
 
 
@@ -161,7 +163,7 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     log-odds ``value``: void for good once ``value < l_void``; else a new cell counts
     the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
     nothing, leaves it) and is structure at ``confirm_hits``, or at once when it
-    ``stayed`` (hit again, with no pass since, at least ``confirm_after`` [s] after it was
+    ``stayed`` (hit again, with no pass since, ``confirm_after`` to ``confirm_within`` [s] after it was
     last observed: a recording that scans slowly). Structure stays structure unless
     two scans in a row see clear through it (``MARK_CLEAR``: a return that ends at least
     ``release_margin`` beyond the cell, so range noise and pose error at a face do not
@@ -510,7 +512,7 @@ def apply_marks(buffers, box, grid, scan, model):
     log_odds, last_observed = buffers.log_odds, buffers.last_observed
     marks, fade_cache, history = buffers.marks, buffers.fade_cache, buffers.history
     l_void, confirm_hits = model.l_void, model.confirm_hits
-    confirm_after = model.confirm_after
+    confirm_after, confirm_within = model.confirm_after, model.confirm_within
     width, origin_x, origin_y, resolution = (
         grid.width, grid.origin_x, grid.origin_y, grid.resolution
     )  # fmt: skip
@@ -557,7 +559,12 @@ def apply_marks(buffers, box, grid, scan, model):
                     fading = policy == POLICY_DECAY or (dual and fades_by_history(history[idx]))
                     # Under dual, a new cell hit again with no pass since, a gap after it
                     # was last observed, stayed where it was: structure (``dual_history``).
-                    stayed = dual and fading and mark == MARK_HIT and stamp - t >= confirm_after
+                    stayed = (
+                        dual
+                        and fading
+                        and mark == MARK_HIT
+                        and confirm_after <= stamp - t <= confirm_within
+                    )
                     if fading and t < stamp:  # False for NaN (never observed): no fade
                         if t != last_t:  # neighbours mostly share an earlier scan's
                             f_occupied, f_free = fade_factors(

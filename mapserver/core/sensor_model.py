@@ -136,6 +136,10 @@ class SensorModel:
     confirm_after: [s] under ``dual``, a new cell hit again, with no pass since, at least
         this long after it was last observed is structure too: it stayed where it was. This
         confirms what a slow recording (a scan every few seconds) sees in fewer scans.
+    confirm_within: [s] under ``dual``, the longest gap after which a new cell hit again
+        still counts as having stayed (``confirm_after``): after a longer one, with
+        nobody looking, a person walking the same line again is as likely as a wall
+        (a person crossing twice the same way a minute apart); >= ``confirm_after``.
     release_margin: [m] under ``dual``, structure is released (a new cell again, what it
         held dropped) by two scans in a row whose returns cross it and end at least this
         far beyond it, with no hit between (DUFOMap's shortened rays, Duberg et al.,
@@ -159,6 +163,7 @@ class SensorModel:
     void_threshold: float = 0.05
     confirm_hits: int = 10
     confirm_after: float = 2.0
+    confirm_within: float = 10.0
     release_margin: float = 0.3
 
     def __post_init__(self) -> None:
@@ -178,6 +183,11 @@ class SensorModel:
         after = self.confirm_after
         if not (isinstance(after, int | float) and math.isfinite(after) and after > 0):
             raise FieldError("confirm_after", after, "must be positive seconds")
+        within = self.confirm_within
+        if not (isinstance(within, int | float) and math.isfinite(within) and within >= after):
+            raise FieldError(
+                "confirm_within", within, f"must be seconds, at least confirm_after ({after})"
+            )
         if not self.void_threshold < self.free_threshold:
             raise FieldError(
                 "void_threshold",
@@ -311,9 +321,10 @@ LEGACY_SENSOR_MODEL: tuple[dict[str, Any], ...] = (
     {"fill_between_beams": False, "guard_glancing_faces": False},
     # Before the ``dual`` policy (docs/dual.md), which alone reads these: today's defaults.
     {name: _DEFAULTS[name] for name in ("void_threshold", "confirm_hits", "confirm_after")},
-    # Before ``dual`` released structure seen clear through (docs/dual.md): today's default
+    # Before ``dual`` bounded the confirm-after gap and released structure seen clear
+    # through (docs/dual.md): today's defaults
     # (dual's history rules changed with it; such a dir replays under today's).
-    {"release_margin": _DEFAULTS["release_margin"]},
+    {name: _DEFAULTS[name] for name in ("confirm_within", "release_margin")},
 )
 """The values a sensor model recorded before a field existed was fused under, one
 mapping per change that added fields, oldest first (``fill_legacy_sensor_model``)."""

@@ -200,6 +200,12 @@ def test_a_slow_recording_confirms_what_stayed_where_it_was_after_a_gap():
     fuse(person, [PASS], 1.0)  # seen through: gone
     fuse(person, [HIT], 4.0)  # something there again: new, not confirmed
     assert not person.structure_mask()[0, CELL]
+    trail = row_grid(SensorModel(confirm_within=10.0))
+    fuse(trail, [HIT], 0.0)  # a person crossing, nobody looking after
+    fuse(trail, [HIT], 75.0)  # the same line walked again 75 s later: not "stayed"
+    assert not trail.structure_mask()[0, CELL]
+    fuse(trail, [HIT], 85.0)  # hit again 10 s on, nothing between: within the bound
+    assert trail.structure_mask()[0, CELL]
 
 
 @pytest.mark.parametrize(
@@ -211,6 +217,8 @@ def test_a_slow_recording_confirms_what_stayed_where_it_was_after_a_gap():
         ("confirm_hits", 2.5, "must be a whole number of scans, 1 to 252"),
         ("confirm_after", -1.0, "must be positive seconds"),
         ("confirm_after", float("inf"), "must be positive seconds"),
+        ("confirm_within", 1.0, "must be seconds, at least confirm_after (2.0)"),
+        ("release_margin", 0.0, "must be a positive distance in metres"),
     ],
 )
 def test_the_dual_settings_refuse_bad_values_naming_them(field, value, reason):

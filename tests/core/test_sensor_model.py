@@ -88,21 +88,21 @@ BEFORE_DUAL = {**BEFORE_CLEARING, "fill_between_beams": True, "guard_glancing_fa
         (BEFORE_NO_RETURN, {
             **CORE, "p_miss_no_return": 0.4, "no_return_range": None,
             "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
         }),
         (BEFORE_CLEARING, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
         }),
         (BEFORE_DUAL, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": True, "guard_glancing_faces": True,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
         }),
         ({"p_hit": 0.8}, {  # no p_miss (no server wrote this): no no-return pair, as before
             "p_hit": 0.8, "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
         }),
     ],
     ids=["before-no-return", "before-clearing", "before-dual", "no-p-miss"],
@@ -129,7 +129,7 @@ def test_the_kernel_codes_come_from_the_one_table():
 def test_the_kernel_model_holds_each_value_by_name():
     model = SensorModel(
         p_hit=0.8, p_miss=0.3, prior=0.45, clamp_min=-4, clamp_max=6, p_miss_no_return=0.35,
-        void_threshold=0.1, confirm_hits=7, confirm_after=3,
+        void_threshold=0.1, confirm_hits=7, confirm_after=3, confirm_within=12,
     )  # fmt: skip
     decay = DecayParams(half_life_occupied=20, half_life_free=90)
     record = fusion_kernel.kernel_model(model, decay, Policy.DUAL)
@@ -146,6 +146,7 @@ def test_the_kernel_model_holds_each_value_by_name():
         "l_void": model.l_void,
         "confirm_hits": 7,
         "confirm_after": 3.0,
+        "confirm_within": 12.0,
     }
     # Typed as the kernels are compiled for (an int would be another signature).
     assert [type(v) for v in record] == [
