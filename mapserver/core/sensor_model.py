@@ -137,9 +137,11 @@ class SensorModel:
         this long after it was last observed is structure too: it stayed where it was. This
         confirms what a slow recording (a scan every few seconds) sees in fewer scans.
     confirm_within: [s] under ``dual``, the longest gap after which a new cell hit again
-        still counts as having stayed (``confirm_after``): after a longer one, with
-        nobody looking, a person walking the same line again is as likely as a wall
-        (a person crossing twice the same way a minute apart); >= ``confirm_after``.
+        still counts as having stayed (``confirm_after``), >= ``confirm_after``. After a
+        longer one, with nobody looking, a person walking the same line again is as
+        likely as a wall. The default, 60 s, is two of decay's occupied half lives
+        (``DecayParams.half_life_occupied``): by then a new cell's first evidence has
+        faded to a quarter, and counting it as proof of staying would contradict the fade.
     release_margin: [m] under ``dual``, structure is released (a new cell again, what it
         held dropped) by two scans in a row whose returns cross it and end at least this
         far beyond it, with no hit between (DUFOMap's shortened rays, Duberg et al.,
@@ -163,7 +165,7 @@ class SensorModel:
     void_threshold: float = 0.05
     confirm_hits: int = 10
     confirm_after: float = 2.0
-    confirm_within: float = 10.0
+    confirm_within: float = 60.0
     release_margin: float = 0.3
 
     def __post_init__(self) -> None:

@@ -200,7 +200,7 @@ def test_a_slow_recording_confirms_what_stayed_where_it_was_after_a_gap():
     fuse(person, [PASS], 1.0)  # seen through: gone
     fuse(person, [HIT], 4.0)  # something there again: new, not confirmed
     assert not person.structure_mask()[0, CELL]
-    trail = row_grid(SensorModel(confirm_within=10.0))
+    trail = row_grid()  # confirm_within 60 s
     fuse(trail, [HIT], 0.0)  # a person crossing, nobody looking after
     fuse(trail, [HIT], 75.0)  # the same line walked again 75 s later: not "stayed"
     assert not trail.structure_mask()[0, CELL]

@@ -88,21 +88,21 @@ BEFORE_DUAL = {**BEFORE_CLEARING, "fill_between_beams": True, "guard_glancing_fa
         (BEFORE_NO_RETURN, {
             **CORE, "p_miss_no_return": 0.4, "no_return_range": None,
             "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 60.0, "release_margin": 0.3,
         }),
         (BEFORE_CLEARING, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 60.0, "release_margin": 0.3,
         }),
         (BEFORE_DUAL, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": True, "guard_glancing_faces": True,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 60.0, "release_margin": 0.3,
         }),
         ({"p_hit": 0.8}, {  # no p_miss (no server wrote this): no no-return pair, as before
             "p_hit": 0.8, "fill_between_beams": False, "guard_glancing_faces": False,
-            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 10.0, "release_margin": 0.3,
+            "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0, "confirm_within": 60.0, "release_margin": 0.3,
         }),
     ],
     ids=["before-no-return", "before-clearing", "before-dual", "no-p-miss"],
