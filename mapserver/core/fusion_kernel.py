@@ -163,8 +163,8 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     log-odds ``value``: void for good once ``value < l_void``; else a new cell counts
     the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
     nothing, leaves it) and is structure at ``confirm_hits``, or at once when it
-    ``stayed`` (hit again, with no pass since, ``confirm_after`` to ``confirm_within`` [s] after it was
-    last observed: a recording that scans slowly). Structure stays structure unless
+    ``stayed`` (hit again, with no pass since, ``confirm_after`` to ``confirm_within`` [s]
+    after it was last observed: a recording that scans slowly). Structure stays structure unless
     two scans in a row see clear through it (``MARK_CLEAR``: a return that ends at least
     ``release_margin`` beyond the cell, so range noise and pose error at a face do not
     count; passes nearer their endpoint and no-return beams leave the count, a hit
