@@ -86,6 +86,22 @@ class TaskAgent:
         self._dwell_until = None
         self._request(node, task.pickup, now)
 
+    def give_back(self, now: float, node: str) -> Task:
+        """Drop the trip (it goes back to the queue, ``scenarios.run.trip_queue``) and park
+        at ``node``, where the unit stands or drives to; returns the trip."""
+        task, self.task = self.task, None
+        if task is None:
+            raise ValueError(f"unit {self.unit_id!r} has no trip to give back")
+        self._leg, self._dwell_until = 0, None
+        self.coordinator.request(self.unit_id, node, node, self.priority, now)
+        self._target = None
+        return task
+
+    @property
+    def carrying(self) -> bool:
+        """Has the unit picked its trip's load up (it drives to the dropoff)?"""
+        return self.task is not None and self._leg == 1
+
     def _request(self, node: str, point: Point, now: float) -> None:
         goal = self.graph.nearest_node(*point)
         self.coordinator.request(self.unit_id, node, goal, self.priority, now)

@@ -11,7 +11,9 @@ Two rules, both deterministic:
   International Journal of Production Research 22(3), 1984. It shortens the empty drive
   to the pickup, which is pure overhead for the fleet.
 
-A trip meant for one unit (``Task.unit``) only ever goes to that unit.
+A trip meant for one unit (``Task.unit``) only ever goes to that unit. A trip returned by
+its unit (no route to its goal) waits in the queue by the rules of
+``scenarios.run.trip_queue``.
 """
 
 from __future__ import annotations
@@ -23,24 +25,33 @@ import networkx as nx
 
 from planner.lane_graph import LaneGraph
 from planner.reservations import unit_order
+from scenarios.run.trip_queue import TripQueue
 from scenarios.spec.tasks import Task
 
 RULES = ("first", "nearest")
 LOOK_AHEAD = 64
-"""How many trips of the stream are read ahead of their release."""
+"""How many trips of the stream are read ahead of their release (not counting those to a
+held goal)."""
 
 
 class Dispatcher:
-    """Hands released trips of ``stream`` to idle units on ``graph`` by ``rule``."""
+    """Hands released trips of ``stream`` to idle units on ``graph`` by ``rule``; ``queue``
+    holds them meanwhile (default: ``TripQueue(graph)``)."""
 
-    def __init__(self, stream: Iterator[Task], graph: LaneGraph, rule: str = "nearest") -> None:
+    def __init__(
+        self,
+        stream: Iterator[Task],
+        graph: LaneGraph,
+        rule: str = "nearest",
+        queue: TripQueue | None = None,
+    ) -> None:
         if rule not in RULES:
             raise ValueError(f"dispatch rule must be one of {RULES}, got {rule!r}")
         self._stream = stream
         self._graph = graph
         self._reverse = graph.graph.reverse(copy=False)
         self.rule = rule
-        self._pending: list[Task] = []
+        self.queue = TripQueue(graph) if queue is None else queue
         self._exhausted = False
         self._to_node: dict[str, dict[str, float]] = {}  # pickup node -> node -> [m]
 
@@ -50,10 +61,14 @@ class Dispatcher:
         self._read_ahead()
         free = sorted(idle, key=unit_order)
         pairs: list[tuple[str, Task]] = []
-        for task in [t for t in self._pending if t.release <= now]:
+        for task in self.queue.released(now):
             if not free:
                 break
-            candidates = [u for u in free if task.unit in (None, u)]
+            if not self.queue.ready(task, now):
+                continue
+            candidates = [
+                u for u in free if task.unit in (None, u) and self.queue.allows(task, u, now)
+            ]
             if not candidates:
                 continue
             if self.rule == "first":
@@ -62,17 +77,21 @@ class Dispatcher:
                 distance = self._distances(task)
                 uid = min(candidates, key=lambda u: distance.get(idle[u], math.inf))
             free.remove(uid)
-            self._pending.remove(task)
+            self.queue.take(task, now)
             pairs.append((uid, task))
         return pairs
 
+    def give_back(self, task: Task, unit_id: str, now: float) -> None:
+        """``unit_id`` returns ``task`` at ``now`` [s] (``TripQueue.give_back``)."""
+        self.queue.give_back(task, unit_id, now)
+
     def _read_ahead(self) -> None:
-        while not self._exhausted and len(self._pending) < LOOK_AHEAD:
+        while not self._exhausted and self.queue.waiting() < LOOK_AHEAD:
             task = next(self._stream, None)
             if task is None:
                 self._exhausted = True
             else:
-                self._pending.append(task)
+                self.queue.add(task)
 
     def _distances(self, task: Task) -> dict[str, float]:
         """[m] from every node to the trip's pickup node over the lane graph (cached)."""

@@ -11,7 +11,8 @@ with the same seed are identical step for step. Each ``step``:
 2. every ``map_read_s`` [s] the units read the shared costmap (``GET /v1/costmap``,
    raw); every ``lane_refresh_s`` the lane coordinator re-reads lane costs
    (``POST /v1/query/segments``);
-3. the coordinator takes the units' positions and grants lanes; breakdowns start;
+3. the coordinator takes the units' positions and grants lanes; breakdowns start; a trip
+   that has had no route too long goes back to the queue (``scenarios.run.trip_queue``);
    released trips go to idle units (``scenarios.run.dispatch``); each unit's agent plans on
    the costmap and commands its drive;
 4. the observers that are due run (``scenarios.run.observers``): each declares how often
@@ -48,6 +49,7 @@ from scenarios.run.dispatch import Dispatcher
 from scenarios.run.fleet_filter import FleetMemberFilter
 from scenarios.run.observers import Observer, Schedule, StandardObservers
 from scenarios.run.record import EventRecord, RunRecord
+from scenarios.run.trip_queue import ReturnWatch, TripQueue
 from scenarios.score.clearing import ClearingTracker
 from scenarios.score.counts import freeze_counts, plan_counts
 from scenarios.score.evidence import freeze_records
@@ -101,14 +103,16 @@ class Motion:
 
 @dataclass
 class StepReport:
-    """What one ``step`` did, for the observers: the sim's result, the trips handed out
-    (unit, trip, start node, position [m]), every unit's position [m] at the step,
+    """What one ``step`` did, for the observers: the sim's result, the trips returned to
+    the queue (unit, trip, cause), the trips handed out (unit, trip, start node, position
+    [m]), every unit's position [m] at the step,
     every agent's state and its drive's motion before the new command, the paths newly
     sent to drives, the units blocked now."""
 
     now: float
     sim: StepResult
     positions: dict[str, tuple[float, float]] = field(default_factory=dict)
+    returned: list[tuple[str, Task, str]] = field(default_factory=list)
     assigned: list[tuple[str, Task, str, tuple[float, float]]] = field(default_factory=list)
     states: dict[str, AgentState] = field(default_factory=dict)
     motion: dict[str, Motion] = field(default_factory=dict)
@@ -200,7 +204,9 @@ class Episode:
         for change in setup.world_schedule():
             self.sim.schedule(change.time, self._recording(change))
         self._breakdowns = list(setup.breakdowns())
-        self.dispatcher = Dispatcher(setup.task_stream(), graph, opts.dispatch)
+        queue = TripQueue(graph, setup.tasks.retry_after)
+        self.dispatcher = Dispatcher(setup.task_stream(), graph, opts.dispatch, queue)
+        self.returns = ReturnWatch(setup.tasks.return_after, graph, self.geometry)
         self.costs: Grid | None = None
         self._map_reads = Schedule(opts.map_read_s)
         self._lane_reads = Schedule(opts.lane_refresh_s)
@@ -254,6 +260,7 @@ class Episode:
             self.coordinator.refresh(now)
         self.coordinator.tick(now, positions)
         self._start_breakdowns(now, positions)
+        self._give_back(now, report)
         self._dispatch(now, positions, report)
         for uid, agent in self.agents.items():
             drive = self.sim.unit(uid)
@@ -284,6 +291,16 @@ class Episode:
             self.record.events.append(
                 EventRecord(now, event.kind, event.unit_id, x, y, event.describe())
             )
+
+    def _give_back(self, now: float, report: StepReport) -> None:
+        """Return to the queue the trips that have had no route too long (``returns``)."""
+        for uid, agent in self.agents.items():
+            status = self.coordinator.status(uid) if agent.task is not None else None
+            cause = self.returns.due(now, uid, agent, status, self.costs.data)
+            if cause is not None:
+                task = agent.give_back(now, status.node or status.target)
+                self.dispatcher.give_back(task, uid, now)
+                report.returned.append((uid, task, cause))
 
     def _dispatch(self, now: float, positions, report: StepReport) -> None:
         idle = {

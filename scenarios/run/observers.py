@@ -216,7 +216,8 @@ class FreezeWatch(_Observer):
 
 
 class Throughput(_Observer):
-    """Trips and unit-ticks for the throughput metrics (``scenarios.score.throughput``)."""
+    """Trips, their returns and unit-ticks for the throughput metrics
+    (``scenarios.score.throughput``)."""
 
     def __init__(self, episode: Episode) -> None:
         self.tracker = ThroughputTracker(
@@ -225,15 +226,18 @@ class Throughput(_Observer):
 
     def observe(self, episode: Episode) -> None:
         report = episode.report
+        for _, task, cause in report.returned:  # before: a trip may go out again at once
+            self.tracker.returned(task, report.now, cause)
         for uid, task, node, position in report.assigned:
             limits = episode.sim.unit(uid).limits
-            self.tracker.assigned(position, node, task, report.now, limits)
+            self.tracker.assigned(position, node, task, report.now, limits, uid)
         for uid, state in report.states.items():
             agent = episode.agents[uid]
             self.tracker.observe(uid, report.now, agent, state, report.motion[uid])
 
     def finish(self, episode: Episode) -> None:
         episode.record.trips = self.tracker.trips
+        episode.record.unfinished_trips = self.tracker.unfinished()
 
 
 class ClearingWatch(_Observer):

@@ -214,21 +214,55 @@ class FreezeRecord:
 
 
 @dataclass(frozen=True)
+class Attempt:
+    """One unit's go at a trip: ``unit_id`` from ``start`` to ``end`` [s] (None: still at
+    it when the run ended); ``outcome`` ``completed``, ``returned`` (to the queue, with its
+    ``cause``, ``scenarios.run.trip_queue.CAUSES``) or ``open`` (unfinished at the end)."""
+
+    unit_id: str
+    start: float
+    end: float | None
+    outcome: str
+    cause: str | None = None
+
+    @property
+    def seconds(self) -> float:
+        """[s] it lasted (0 while open)."""
+        return 0.0 if self.end is None else self.end - self.start
+
+
+@dataclass(frozen=True)
 class TripRecord:
     """A completed trip: task ``task_id`` driven by ``unit_id``, ``assigned`` and ``done``
     [s] sim time, ``ideal_s`` [s] its congestion-free time (``scenarios.score.throughput``; None
-    when the lane graph has no route for it)."""
+    when the lane graph has no route for it), all of the attempt that completed it;
+    ``returned``: the attempts before it, each returned to the queue."""
 
     task_id: str
     unit_id: str
     assigned: float
     done: float
     ideal_s: float | None
+    returned: tuple[Attempt, ...] = ()
 
     @property
     def actual_s(self) -> float:
         """[s] from assignment to completion."""
         return self.done - self.assigned
+
+    @property
+    def attempts(self) -> tuple[Attempt, ...]:
+        """Every attempt, the completing one last."""
+        return (*self.returned, Attempt(self.unit_id, self.assigned, self.done, "completed"))
+
+
+@dataclass(frozen=True)
+class UnfinishedTrip:
+    """A trip returned to the queue at least once and not completed by the end of the run:
+    its attempts in order (the last one ``open`` if a unit was at it when the run ended)."""
+
+    task_id: str
+    attempts: tuple[Attempt, ...]
 
 
 @dataclass
@@ -253,6 +287,7 @@ class RunRecord:
     scans: list[ScanSample] = field(default_factory=list)
     freezes: list[FreezeRecord] = field(default_factory=list)
     trips: list[TripRecord] = field(default_factory=list)
+    unfinished_trips: list[UnfinishedTrip] = field(default_factory=list)
     collisions: list[CollisionEvent] = field(default_factory=list)
     incidents: list[CollisionIncident] = field(default_factory=list)
     time_to_clear: dict[str, float | None] = field(default_factory=dict)

@@ -86,7 +86,12 @@ THROUGHPUT_METRICS = (
     ("fleet_efficiency", "fleet efficiency", "{:.1%}"),
     ("moving_share", "moving, with a task", "{:.1%}"),
     ("mean_speed_moving", "mean speed moving", "{:.2f} m/s"),
+    ("trips_returned", "trips returned", "{:d}"),
+    ("trips_retried", "trips retried", "{:d}"),
+    ("returned_s", "time in returned trips", "{:.1f} s"),
 )
+TABLE_ROW_SCALE = 1.3  # row height of the throughput table, in table rows of the font
+TABLE_FULL_ROWS = 11  # rows that fit at TABLE_ROW_SCALE; more are squeezed into their height
 
 
 def write_report(record: RunRecord, path: str | os.PathLike[str]) -> Path:
@@ -419,8 +424,9 @@ def _draw_throughput(ax: Axes, record: RunRecord) -> None:
         return
     table = ax.table(cellText=rows, colWidths=(0.7, 0.3), loc="upper center", edges="horizontal")
     table.auto_set_font_size(False)
-    table.set_fontsize(9)
-    table.scale(1.0, 1.3)
+    squeeze = min(1.0, TABLE_FULL_ROWS / len(rows))
+    table.set_fontsize(9 if squeeze == 1.0 else 8)
+    table.scale(1.0, TABLE_ROW_SCALE * squeeze)
     for (_, col), cell in table.get_celld().items():
         cell.set_text_props(ha="left" if col == 0 else "right")
 

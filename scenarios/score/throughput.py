@@ -27,6 +27,13 @@ is a polyline driven by one unit alone at its ``DriveLimits`` (``v`` max_speed [
 The lane route's length is kept: where the floor is open enough for the navigator to
 cut across it, a unit can still beat the ideal.
 
+Returned trips (``scenarios.run.trip_queue``). A trip handed back to the queue ends its
+attempt (``returned``); the ideal time, ``actual_s``, ``trip_time_ratio`` and
+``fleet_efficiency`` count the attempt that completed the trip alone, its ideal from where
+that attempt started. The returned attempts' time is ``returned_s`` [unit-s], beside
+``trips_returned`` (attempts returned) and ``trips_retried`` (attempts at a trip returned
+before).
+
 Standing still, by cause (``standing_cause``), for a unit with a task and speed 0 over a
 tick: ``breakdown`` (broken down), ``dwell`` (dwelling at a stop), ``freeze`` (no
 admissible path or lane this tick), ``turn`` (turning in place), else ``traffic``
@@ -45,8 +52,9 @@ import networkx as nx
 from fleet.shapes import wrap_angle
 from fleet.unit import DriveLimits, corner_speed
 from planner.lane_graph import LaneGraph
+from planner.reservations import unit_order
 from scenarios.run.agents import AgentState, activity
-from scenarios.run.record import TripRecord
+from scenarios.run.record import Attempt, TripRecord, UnfinishedTrip
 from scenarios.spec.tasks import Task
 
 Point = tuple[float, float]
@@ -192,17 +200,33 @@ class ThroughputTracker:
         self.at_node_m = float(at_node_m)
         self.trips: list[TripRecord] = []
         self.wait_s = dict.fromkeys(WAIT_CAUSES, 0.0)
-        self._open: dict[str, tuple[float, float | None]] = {}  # task id -> assigned, ideal
+        self.retried = 0
+        self._open: dict[str, tuple[str, float, float | None]] = {}  # task -> unit, start, ideal
+        self._returned: dict[str, list[Attempt]] = {}  # task id -> its returned attempts
         self._task_ticks = self._task_moving_ticks = self._moving_ticks = 0
         self._moving_speed = 0.0  # [m/s] summed over moving unit-ticks
 
     def assigned(
-        self, position: Point, node: str, task: Task, now: float, limits: DriveLimits
+        self,
+        position: Point,
+        node: str,
+        task: Task,
+        now: float,
+        limits: DriveLimits,
+        unit_id: str = "",
     ) -> None:
-        """A unit at ``position`` [m] is given ``task`` at ``now`` [s], starting from
-        ``node``, with drive ``limits``."""
+        """Unit ``unit_id`` at ``position`` [m] is given ``task`` at ``now`` [s], starting
+        from ``node``, with drive ``limits``."""
         ideal = ideal_trip_s(self.graph, position, node, task, limits, self.at_node_m)
-        self._open[task.task_id] = (now, ideal)
+        self._open[task.task_id] = (unit_id, now, ideal)
+        if task.task_id in self._returned:
+            self.retried += 1
+
+    def returned(self, task: Task, now: float, cause: str) -> None:
+        """``task``'s attempt ends at ``now`` [s]: returned to the queue for ``cause``."""
+        unit_id, start, _ = self._open.pop(task.task_id)
+        attempt = Attempt(unit_id, start, now, "returned", cause)
+        self._returned.setdefault(task.task_id, []).append(attempt)
 
     def observe(
         self, unit_id: str, now: float, agent: Agent, state: AgentState, drive: Drive
@@ -210,8 +234,10 @@ class ThroughputTracker:
         """Unit ``unit_id`` after its agent's step at ``now`` [s]: ``state`` (a completed
         task is recorded) and ``drive`` (its speed over the sim step that led here)."""
         if state.task_done is not None:
-            assigned, ideal = self._open.pop(state.task_done.task_id)
-            self.trips.append(TripRecord(state.task_done.task_id, unit_id, assigned, now, ideal))
+            task_id = state.task_done.task_id
+            _, assigned, ideal = self._open.pop(task_id)
+            returned = tuple(self._returned.pop(task_id, ()))
+            self.trips.append(TripRecord(task_id, unit_id, assigned, now, ideal, returned))
         if drive.speed > 0:
             self._moving_ticks += 1
             self._moving_speed += drive.speed
@@ -223,10 +249,26 @@ class ThroughputTracker:
         else:
             self.wait_s[standing_cause(now, agent, state, drive)] += self.dt
 
+    def unfinished(self) -> list[UnfinishedTrip]:
+        """The trips returned at least once and not completed, by their first attempt's
+        start (then task id); an attempt still under way is ``open``."""
+        trips = []
+        for task_id, attempts in self._returned.items():
+            tail = self._open.get(task_id)
+            last = () if tail is None else (Attempt(tail[0], tail[1], None, "open"),)
+            trips.append(UnfinishedTrip(task_id, (*attempts, *last)))
+        return sorted(trips, key=lambda t: (t.attempts[0].start, unit_order(t.task_id)))
+
+    def returned_attempts(self) -> list[Attempt]:
+        """Every returned attempt: of completed trips, then of unfinished ones."""
+        done = [a for t in self.trips for a in t.returned]
+        return done + [a for attempts in self._returned.values() for a in attempts]
+
     def metrics(self, units: int, sim_seconds: float) -> dict[str, object]:
         """The throughput keys of ``metrics.json`` for ``units`` units over ``sim_seconds``
         [s] (docs/throughput.md); None where a mean has nothing to average."""
         unit_s = units * sim_seconds
+        returned = self.returned_attempts()
         ideal = [t.ideal_s for t in self.trips if t.ideal_s is not None]
         ratios = [t.actual_s / t.ideal_s for t in self.trips if t.ideal_s]
         return {
@@ -237,6 +279,9 @@ class ThroughputTracker:
             "moving_share": _ratio(self._task_moving_ticks, self._task_ticks, 4),
             "mean_speed_moving": _ratio(self._moving_speed, self._moving_ticks, 4),
             "wait_s": {cause: round(s, 3) for cause, s in self.wait_s.items()},
+            "trips_returned": len(returned),
+            "trips_retried": self.retried,
+            "returned_s": round(sum((a.seconds for a in returned), 0.0), 3),
         }
 
 

@@ -6,6 +6,8 @@ The ``tasks`` section::
       count: 12            # 12 trips, all released at t = 0 (a backlog), or
       rate_per_unit: 0.02  # [1/s] per unit: trips arrive as a Poisson process
       dwell: 3.0           # [s] a unit stands at the pickup, then at the dropoff
+      return_after: 30.0   # [s] a trip with no route this long goes back to the queue
+      retry_after: 60.0    # [s] and its goal is held this long unless it clears
 
 Semantics (``task_stream``):
 
@@ -21,6 +23,9 @@ Semantics (``task_stream``):
   storage location; the station) from a generator seeded by the scenario's seed alone
   (``task_rng``), so the stream does not depend on the policy, on the sim, or on how
   fast the runner consumes it.
+- A trip whose goal has had no route for ``return_after`` [s] (null: never) goes back to
+  the queue and is tried again when its goal clears or after ``retry_after`` [s]
+  (``scenarios.run.trip_queue``, where the defaults are argued).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mapserver.service.validation import Section, number
+from scenarios.run.trip_queue import DEFAULT_RETRY_AFTER_S, DEFAULT_RETURN_AFTER_S
 from scenarios.spec.yaml_lines import Document
 
 if TYPE_CHECKING:
@@ -50,11 +56,15 @@ TASK_STREAM_KEY = 0x7A5C
 class TaskSpec:
     """The ``tasks`` section: ``count`` trips released at 0, or ``rate_per_unit`` [1/s]
     trips per unit arriving at random (at most one of them; neither: no trips); ``dwell``
-    [s] at each stop."""
+    [s] at each stop; a trip with no route for ``return_after`` [s] (None: never) goes
+    back to the queue, its goal held for ``retry_after`` [s] unless it clears
+    (``scenarios.run.trip_queue``)."""
 
     count: int | None = None
     rate_per_unit: float | None = None
     dwell: float = DEFAULT_DWELL_S
+    return_after: float | None = DEFAULT_RETURN_AFTER_S
+    retry_after: float = DEFAULT_RETRY_AFTER_S
 
     @property
     def enabled(self) -> bool:
@@ -85,6 +95,8 @@ class TasksFields(Section):
     count: number(integer=True, ge=0, le=MAX_TASKS) | None = None
     rate_per_unit: number("trips per unit per second", ge=0) | None = None
     dwell: number("seconds", ge=0) = DEFAULT_DWELL_S
+    return_after: number("seconds", gt=0) | None = DEFAULT_RETURN_AFTER_S
+    retry_after: number("seconds", ge=0) = DEFAULT_RETRY_AFTER_S
 
 
 def parse_tasks(doc: Document, f: TasksFields, units: int, duration: float) -> TaskSpec:
@@ -96,7 +108,7 @@ def parse_tasks(doc: Document, f: TasksFields, units: int, duration: float) -> T
     if rate is not None and rate * units * duration > MAX_TASKS:
         expected = rate * units * duration
         raise doc.error(where, f"asks for about {expected:.0f} trips, more than {MAX_TASKS}", rate)
-    return TaskSpec(f.count, rate, f.dwell)
+    return TaskSpec(f.count, rate, f.dwell, f.return_after, f.retry_after)
 
 
 def task_rng(seed: int) -> np.random.Generator:

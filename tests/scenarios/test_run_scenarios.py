@@ -47,7 +47,10 @@ def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     collisions = json.loads((out / "collisions.json").read_text())
     assert sum(c["cause"] == "fleet" for c in collisions) == metrics["collisions"]
     trips = json.loads((out / "trips.json").read_text())
-    assert len(trips) == metrics["tasks_completed"]
+    assert sum(t["done"] is not None for t in trips) == metrics["tasks_completed"]
+    assert metrics["trips_returned"] == sum(
+        a["outcome"] == "returned" for t in trips for a in t["attempts"]
+    )
     for key in ("trips_per_unit_hour", "fleet_efficiency", "moving_share", "mean_speed_moving"):
         assert isinstance(metrics[key], float) and metrics[key] >= 0, key
     for key in ("ideal_trip_s", "trip_time_ratio"):  # null: no trip completed

@@ -135,6 +135,7 @@ def test_key_values_round_trip_from_the_file(tmp_path):
     assert [(s.id, s.x, s.y, s.pod) for s in scenario.storage] == [("s-1", 8.0, 6.5, None)]
     assert scenario.units.lidar.beams == 90 and scenario.units.ids == ("u1", "u2")
     assert (scenario.tasks.count, scenario.tasks.dwell) == (3, 3.0)
+    assert (scenario.tasks.return_after, scenario.tasks.retry_after) == (30.0, 60.0)  # defaults
     assert scenario.events == (
         DropEvent(2.0, "tote-1", 10.5, 4.0),
         RemoveEvent(5.0, "tote-1"),
@@ -153,6 +154,22 @@ def test_key_values_round_trip_from_the_file(tmp_path):
     assert overrides["inflation"]["inscribed_radius"] == scenario.units.drive.radius
     settings_ = scenario.server_settings({"port": 0})
     assert settings_.port == 0 and settings_.build_sensor_model().p_hit == 0.75
+
+
+def test_when_trips_go_back_is_set_in_the_tasks_section_and_null_means_never(tmp_path):
+    knobs = "  count: 3\n  return_after: 45\n  retry_after: 0"
+    scenario = load_text(BASE.replace("  count: 3", knobs), tmp_path)
+    assert (scenario.tasks.return_after, scenario.tasks.retry_after) == (45.0, 0.0)
+    scenario = load_text(BASE.replace("  count: 3", "  count: 3\n  return_after: null"), tmp_path)
+    assert scenario.tasks.return_after is None
+    text = BASE.replace("  count: 3", "  count: 3\n  return_after: soon")
+    with pytest.raises(ScenarioError) as err:
+        load_text(text, tmp_path, "bad.yaml")
+    line = line_of(text, "return_after")
+    assert str(err.value) == (
+        f"{tmp_path / 'bad.yaml'}:{line}: tasks.return_after: must be a number of seconds > 0, "
+        "got 'soon'"
+    )
 
 
 def test_pods_are_the_storage_locations_when_none_are_listed(tmp_path):
@@ -306,6 +323,14 @@ ERRORS = [
         "at most the duration",
     ),  # fmt: skip
     ("  count: 3", "  count: 3\n  count: 4", "tasks.count", "count: 4", "given twice"),
+    ("  count: 3", "  count: 3\n  return_after: 0", "tasks.return_after", "return_after", "> 0"),
+    (
+        "  count: 3",
+        "  count: 3\n  retry_after: -5",
+        "tasks.retry_after",
+        "retry_after",
+        "must be a number of seconds >= 0, got -5",
+    ),  # fmt: skip
     (
         "  floor: {width: 12.0",
         "  floor: {width: 12.0, colour: 1",
@@ -496,8 +521,9 @@ def test_the_world_schedule_plays_the_events_on_a_world(tmp_path):
 # ---------------------------------------------------------------------------- fuzzing
 VOCABULARY = list(TOP_KEYS) + [
     "warehouse", "floor", "lanes", "obstacles", "stations", "storage", "one_way", "count",
-    "starts", "lidar", "drive", "pose_noise", "rate_per_unit", "dwell", "policy", "resolution",
-    "sensor_model", "p_hit", "decay", "inflation", "at", "move", "drop", "remove", "person",
+    "starts", "lidar", "drive", "pose_noise", "rate_per_unit", "dwell", "return_after",
+    "retry_after", "policy", "resolution", "sensor_model", "p_hit", "decay", "inflation",
+    "at", "move", "drop", "remove", "person",
     "breakdown", "path", "x", "y", "id", "kind", "box", "width", "height", "radius", "speed",
 ]  # fmt: skip
 scalars = st.one_of(

@@ -14,7 +14,7 @@ from mapserver.core.geometry import GridGeometry
 from planner.lane_graph import LaneGraph
 from planner.navigator import Command
 from scenarios.run.agents import AgentState
-from scenarios.run.record import RunRecord, TripRecord
+from scenarios.run.record import Attempt, RunRecord, TripRecord, UnfinishedTrip
 from scenarios.score.throughput import ThroughputTracker, ideal_trip_s, segment_s
 from scenarios.score.trips_json import write_trips
 
@@ -144,6 +144,9 @@ def test_metrics_add_up_a_hand_built_sequence_of_unit_ticks():
         "moving_share": 0.25,  # 2 of 8 unit-ticks with a task
         "mean_speed_moving": 1.5,  # (1.0 + 2.0 + 1.5) / 3
         "wait_s": {"traffic": 1.0, "freeze": 0.5, "dwell": 0.5, "breakdown": 0.5, "turn": 0.5},
+        "trips_returned": 0,
+        "trips_retried": 0,
+        "returned_s": 0.0,
     }
 
 
@@ -158,20 +161,72 @@ def test_metrics_of_a_run_with_nothing_to_average_are_null():
         "moving_share": None,
         "mean_speed_moving": None,
         "wait_s": zeros,
+        "trips_returned": 0,
+        "trips_retried": 0,
+        "returned_s": 0.0,
     }
     assert tracker.metrics(units=3, sim_seconds=0.0)["trips_per_unit_hour"] is None
 
 
-def test_trips_json_lists_each_completed_trip(tmp_path):
+def test_a_returned_attempt_is_time_lost_and_the_completing_attempt_alone_is_scored():
+    graph = _line(4.0)
+    task = _task(pickup=(4.0, 0.0), dropoff=(0.0, 0.0), dwell=0.0)
+    other = _task(pickup=(4.0, 0.0), dropoff=(0.0, 0.0), dwell=0.0, task_id="t2")
+    tracker = ThroughputTracker(graph, dt=1.0)
+    tracker.assigned((0.0, 0.0), "a", task, 0.0, LIMITS, "u1")
+    tracker.returned(task, 30.0, "no_route")  # u1 gives it back after 30 s
+    tracker.assigned((0.0, 0.0), "a", other, 30.0, LIMITS, "u1")
+    tracker.assigned((4.0, 0.0), "b", task, 40.0, LIMITS, "u2")  # retried from b
+    third = _task(pickup=(4.0, 0.0), dropoff=(0.0, 0.0), dwell=0.0, task_id="t3")
+    tracker.assigned((4.0, 0.0), "b", third, 41.0, LIMITS, "u3")
+    tracker.returned(third, 50.0, "goal_blocked")  # and never done
+    idle = SimpleNamespace(broken_until=-math.inf, dwell_until=None)
+    drive = SimpleNamespace(speed=1.0, turn_rate=0.0)
+    tracker.observe("u2", 52.0, idle, _state(False, done=task), drive)
+    ideal = ideal_trip_s(graph, (4.0, 0.0), "b", task, LIMITS)  # from where u2 started
+    assert tracker.trips == [
+        TripRecord("t1", "u2", 40.0, 52.0, pytest.approx(ideal),
+                   (Attempt("u1", 0.0, 30.0, "returned", "no_route"),)),
+    ]  # fmt: skip
+    assert [a.outcome for a in tracker.trips[0].attempts] == ["returned", "completed"]
+    assert tracker.unfinished() == [
+        UnfinishedTrip("t3", (Attempt("u3", 41.0, 50.0, "returned", "goal_blocked"),)),
+    ]
+    metrics = tracker.metrics(units=2, sim_seconds=60.0)
+    assert metrics["ideal_trip_s"] == round(ideal, 3)
+    assert metrics["trip_time_ratio"] == round(12.0 / ideal, 4)  # 52 - 40, not 52 - 0
+    assert metrics["fleet_efficiency"] == round(ideal / 120.0, 4)
+    assert (metrics["trips_returned"], metrics["trips_retried"]) == (2, 1)
+    assert metrics["returned_s"] == 30.0 + 9.0
+
+
+def test_trips_json_lists_each_completed_trip_then_the_returned_unfinished_ones(tmp_path):
     record = RunRecord("tiny", "decay", 0, GridGeometry(10, 10, 0.5))
     record.trips += [
         TripRecord("t2", "u1", 0.0, 30.25, 21.83349),
-        TripRecord("t1", "u2", 1.5, 40.0, None),
+        TripRecord("t1", "u2", 1.5, 40.0, None, (Attempt("u1", 0.1, 1.4, "returned", "no_route"),)),
     ]
+    record.unfinished_trips.append(
+        UnfinishedTrip(
+            "t3",
+            (
+                Attempt("u2", 2.0, 32.0, "returned", "goal_blocked"),
+                Attempt("u1", 45.0, None, "open"),
+            ),
+        )
+    )
     path = write_trips(record, tmp_path / "trips.json")
     assert json.loads(path.read_text()) == [
         {"task": "t2", "unit": "u1", "assigned": 0.0, "done": 30.25, "ideal_s": 21.833,
-         "actual_s": 30.25},
+         "actual_s": 30.25, "attempts": [
+             {"unit": "u1", "start": 0.0, "end": 30.25, "outcome": "completed", "cause": None}]},
         {"task": "t1", "unit": "u2", "assigned": 1.5, "done": 40.0, "ideal_s": None,
-         "actual_s": 38.5},
+         "actual_s": 38.5, "attempts": [
+             {"unit": "u1", "start": 0.1, "end": 1.4, "outcome": "returned", "cause": "no_route"},
+             {"unit": "u2", "start": 1.5, "end": 40.0, "outcome": "completed", "cause": None}]},
+        {"task": "t3", "unit": None, "assigned": None, "done": None, "ideal_s": None,
+         "actual_s": None, "attempts": [
+             {"unit": "u2", "start": 2.0, "end": 32.0, "outcome": "returned",
+              "cause": "goal_blocked"},
+             {"unit": "u1", "start": 45.0, "end": None, "outcome": "open", "cause": None}]},
     ]  # fmt: skip
