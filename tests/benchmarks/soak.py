@@ -104,11 +104,14 @@ class FleetClock:
             self.floor = floor
             self.cond.notify_all()
 
-    def join(self, unit: str) -> int:
-        """``unit`` becomes active at the fleet's current tick (returned)."""
+    def join(self, unit: str, after: int = 0) -> int:
+        """``unit`` becomes active at the fleet's current tick, or at ``after`` if that is
+        later (returned): a unit back from a reboot or a dock goes on from the tick it had
+        reached, as a real unit's clock does, and never sends a stamp it sent before."""
         with self.cond:
-            self.next[unit] = self.floor
-            return self.floor
+            start = max(self.floor, after)
+            self.next[unit] = start
+            return start
 
     def leave(self, unit: str) -> None:
         with self.cond:
@@ -214,13 +217,13 @@ def run_honest(run: Run, unit: SyntheticUnit, plan: Plan, tally: Tally) -> None:
                 clock.leave(uid)
                 conn.close()  # docked: the server closes idle keep-alive connections anyway
                 clock.wait_floor(plan.back or 0, run.halt)
-                plan.dock, conn, n = None, run.connect(), clock.join(uid)
+                plan.dock, conn, n = None, run.connect(), clock.join(uid, n)
                 continue
             if plan.reboot is not None and n >= plan.reboot:
                 clock.leave(uid)
                 conn.close()
                 run.halt.wait(run.reboot_s)
-                plan.reboot, conn, n = None, run.connect(), clock.join(uid)
+                plan.reboot, conn, n = None, run.connect(), clock.join(uid, n)
                 continue
             clock.wait_turn(n, run.halt)
             run.post(conn, unit, round(n * run.step + plan.offset, 6), tally)
