@@ -25,8 +25,8 @@ stamp past it (a simulation declaring its clock, as ROS ``/clock``); a 404 or 40
 Churn (fleet times as fractions of the run, T): units with k % 4 == 2 (a quarter) dock
 at 0.20-0.30 T and come back 0.3 T later (9 fleet minutes of 30); units with k % 10 == 3
 join late, at 0.10-0.30 T; unit u0 reboots at 0.5 T (closes its connection, stays down
-``--reboot-seconds`` of real time, then a new connection, stamps continue at the fleet's
-time); unit u1 lags: its stamps are 30 s behind the fleet's (it joins once the fleet is
+``--reboot-seconds`` of real time, then a new connection, stamps going on from the tick
+it had reached, or the fleet's if later: a rebooted unit's clock does not go back); unit u1 lags: its stamps are 30 s behind the fleet's (it joins once the fleet is
 at 30 s). A greedy client posts ``--greedy-beams``-beam scans flat out on
 ``--greedy-connections`` connections (unit ids ``greedy-K``, stamps at the fleet's time)
 for the whole run; its replies are counted apart from the honest units'.
@@ -35,7 +35,9 @@ Printed: a line per ``--sample-seconds`` of fleet time (default 60, less on shor
 runs): fleet minutes, real seconds, fleet/real, honest scans acknowledged and refused so
 far, the greedy client's acknowledged and refused (429 among them), the data dir's size
 [MiB] (flat once retention is reached), the journal and WAL [MiB], the server's RSS
-[MiB] (flat), p50/p99 honest ingest latency [ms] over the window. Then totals: honest
+[MiB] (flat), p50/p99 honest ingest latency [ms] over the window, and what the journal
+holds (read-only beside the server): scans held, snapshots and their MiB, the file's
+freelist MiB (freed pages later appends reuse) and the -wal's MiB. Then totals: honest
 scans refused (must be 0) by status, the greedy client's statuses, p50/p99/max honest
 latency [ms], the slopes of RSS and data dir size over the second half [MiB per real
 minute, Theil-Sen], and the restart at the end: SIGTERM (time to exit), start again on
