@@ -171,7 +171,7 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     resets it; DUFOMap's shortened rays, Duberg et al., RA-L 2024): the first makes it
     ``HISTORY_STRUCTURE_SEEN``, a hit makes it structure again, a second pass makes it
     a new cell (``apply_marks`` drops what it held: it was a pod or a person that left)."""
-    if value < l_void:
+    if value < l_void and mark == MARK_CLEAR:
         return HISTORY_VOID
     if history == HISTORY_STRUCTURE:
         return HISTORY_STRUCTURE_SEEN if mark == MARK_CLEAR else history
