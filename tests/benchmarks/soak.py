@@ -26,8 +26,9 @@ Churn (fleet times as fractions of the run, T): units with k % 4 == 2 (a quarter
 at 0.20-0.30 T and come back 0.3 T later (9 fleet minutes of 30); units with k % 10 == 3
 join late, at 0.10-0.30 T; unit u0 reboots at 0.5 T (closes its connection, stays down
 ``--reboot-seconds`` of real time, then a new connection, stamps going on from the tick
-it had reached, or the fleet's if later: a rebooted unit's clock does not go back); unit u1 lags: its stamps are 30 s behind the fleet's (it joins once the fleet is
-at 30 s). A greedy client posts ``--greedy-beams``-beam scans flat out on
+it had reached, or the fleet's if later: a rebooted unit's clock does not go back);
+unit u1 lags: its stamps are 30 s behind the fleet's (it joins once the fleet is at
+30 s). A greedy client posts ``--greedy-beams``-beam scans flat out on
 ``--greedy-connections`` connections (unit ids ``greedy-K``, stamps at the fleet's time)
 for the whole run; its replies are counted apart from the honest units'.
 
