@@ -249,19 +249,24 @@ def run_greedy(run: Run, unit: ClockedUnit, tally: Tally) -> None:
 
 def run_declarer(run: Run, url: str, state: dict[str, Any]) -> None:
     """``PUT /v1/clock`` at every whole fleet second ahead of the units: they may post up
-    to the declared tick. A 404/405 (or no reply) ends declaring: ``state["clock"]``."""
+    to the declared tick. A reply other than 200/204 (404/405: a server without the
+    clock) ends declaring: ``state["clock"]``; no reply (a read error or timeout under
+    load) is counted in ``state["errors"]`` and the PUT is tried again, as a simulation
+    keeps publishing ``/clock``."""
     per_second = round(1.0 / run.step)
     with httpx.Client(base_url=url, timeout=run.timeout) as http:
         while not run.halt.is_set():
             clock = run.clock
             target = math.ceil((clock.floor + clock.skew) / per_second) * per_second
             if clock.declared is None or target > clock.declared:
-                try:
-                    r = http.put("/v1/clock", json={"now": target * run.step})
-                    status = r.status_code
-                except httpx.HTTPError as exc:
-                    status = type(exc).__name__
                 state["puts"] = state.get("puts", 0) + 1
+                try:
+                    status = http.put("/v1/clock", json={"now": target * run.step}).status_code
+                except httpx.HTTPError as exc:
+                    state["errors"] = state.get("errors", 0) + 1
+                    state["last_error"] = type(exc).__name__
+                    run.halt.wait(0.1)
+                    continue
                 if status != 200 and status != 204:
                     state["clock"] = f"not available ({status})"
                     clock.declare(None)
