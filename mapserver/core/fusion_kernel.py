@@ -33,7 +33,7 @@ order their log-odds and stamps lie in memory.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, get_type_hints
 
 import numpy as np
 from numba import njit
@@ -75,24 +75,19 @@ class KernelModel(NamedTuple):
 
 
 def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> KernelModel:
-    """The update rule the kernels run for ``model`` under ``policy`` with ``decay``, each
-    field by name, typed as the kernels are compiled for (an int clamp would be a new
-    signature to compile): a new rule adds its field to ``KernelModel`` and its line here."""
-    return KernelModel(
-        l_hit=float(model.l_hit),
-        l_miss=float(model.l_miss),
-        l_miss_no_return=float(model.l_miss_no_return),
-        l0=float(model.l0),
-        clamp_min=float(model.clamp_min),
-        clamp_max=float(model.clamp_max),
-        policy=int(POLICY_CODES[policy]),
-        half_life_occupied=float(decay.half_life_occupied),
-        half_life_free=float(decay.half_life_free),
-        l_void=float(model.l_void),
-        confirm_hits=int(model.confirm_hits),
-        confirm_after=float(model.confirm_after),
-        confirm_within=float(model.confirm_within),
-    )
+    """The update rule the kernels run for ``model`` under ``policy`` with ``decay``: each
+    ``KernelModel`` field read by its name from the sensor model (its field or property)
+    or else from the decay parameters, ``policy`` as its code (``POLICY_CODES``), each
+    typed as the record declares it (an int clamp would be a new signature to compile).
+    A new rule adds its field to ``KernelModel`` and to the model, nothing here."""
+    types = get_type_hints(KernelModel)  # float or int per field
+    values = {
+        name: POLICY_CODES[policy]
+        if name == "policy"
+        else getattr(model if hasattr(model, name) else decay, name)
+        for name in KernelModel._fields
+    }
+    return KernelModel(**{name: types[name](v) for name, v in values.items()})
 
 
 class KernelBuffers(NamedTuple):
