@@ -259,6 +259,14 @@ class BeliefGrid:
         """True when only some cells fade, by their history (``dual``)."""
         return self.policy is Policy.DUAL
 
+    @property
+    def occupied_half_life(self) -> float:
+        """[s] the fade half life of evidence above the prior: ``decay``'s, or under
+        ``dual`` a transient's (``SensorModel.transient_half_life``)."""
+        if self.fades_selectively:
+            return self.sensor_model.transient_half_life
+        return self.decay.half_life_occupied
+
     def history(self) -> np.ndarray:
         """The flat history array (``dual``: one byte per cell; one unused byte else)."""
         return self._history
@@ -300,7 +308,7 @@ class BeliefGrid:
             np.ascontiguousarray(t).ravel(),
             self._resolve_stamp(stamp),
             self.sensor_model.l0,
-            self.decay.half_life_occupied,
+            self.occupied_half_life,
             self.decay.half_life_free,
             self._fade_cache,
             out,
@@ -329,7 +337,7 @@ class BeliefGrid:
         if not self.fades:
             return observed
         unfaded = np.abs(log_odds - self.sensor_model.l0) >= self.decay.fade_bound
-        if self.fades_selectively:  # structure and void cells never fade
+        if self.fades_selectively:  # structure and void cells are never unknown again
             unfaded |= history >= kernel.HISTORY_STRUCTURE_SEEN
         return observed & unfaded
 

@@ -72,6 +72,7 @@ class KernelModel(NamedTuple):
     confirm_hits: int
     confirm_after: float
     confirm_within: float
+    transient_half_life: float
 
 
 def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> KernelModel:
@@ -516,7 +517,11 @@ def apply_marks(buffers, box, grid, scan, model):
     l_hit, l_miss, l0 = model.l_hit, model.l_miss, model.l0
     l_miss_no_return = model.l_miss_no_return
     clamp_min, clamp_max, policy = model.clamp_min, model.clamp_max, model.policy
-    half_life_occupied, half_life_free = model.half_life_occupied, model.half_life_free
+    dual = policy == POLICY_DUAL
+    # Under dual a transient's hits fade with a half life of their own; here only new
+    # cells fade (a void cell's update overwrites what it held: ``fades_by_history``).
+    half_life_occupied = model.transient_half_life if dual else model.half_life_occupied
+    half_life_free = model.half_life_free
     res2 = resolution * resolution
     weighted = pose_var_xy > 0.0 or pose_var_yaw > 0.0
     # Cells last observed by the same earlier scan share their stamp: cache fade factors.
@@ -525,7 +530,6 @@ def apply_marks(buffers, box, grid, scan, model):
     words = marks.view(np.uint64)
     ev_hit, ev_free, ev_nr = l_hit - l0, l_miss - l0, l_miss_no_return - l0
     last_t, f_occupied, f_free = math.nan, 1.0, 1.0  # the fade factors of the last t
-    dual = policy == POLICY_DUAL
     n = 0
     for row in range(box[1], box[3] + 1):
         for w in range((row * width + box[0]) >> 3, ((row * width + box[2]) >> 3) + 1):
@@ -551,7 +555,7 @@ def apply_marks(buffers, box, grid, scan, model):
                         ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
                     value = log_odds[idx]
                     t = last_observed[idx]
-                    fading = policy == POLICY_DECAY or (dual and fades_by_history(history[idx]))
+                    fading = policy == POLICY_DECAY or (dual and history[idx] < HISTORY_STRUCTURE_SEEN)
                     # Under dual, a new cell hit again with no pass since, a gap after it
                     # was last observed, stayed where it was: structure (``dual_history``).
                     stayed = (
@@ -642,14 +646,15 @@ def faded_log_odds(
 
     Works on flat arrays of any window; never-observed cells (t NaN) are copied as is.
     selective (``POLICY_DUAL``): only the cells whose ``history`` (flat, as the window)
-    says new fade (``fades_by_history``); the others are copied as is.
+    says fade (``fades_by_history``); the others are copied as is. The caller passes
+    dual's ``transient_half_life`` as ``half_life_occupied``.
     """
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
     for i in range(log_odds.shape[0]):
         value = log_odds[i]
         t = last_observed[i]
-        if t < stamp and (not selective or fades_by_history(history[i])):
+        if t < stamp and (not selective or fades_by_history(history[i], value, l0)):
             value = fade(
                 value, l0, t, stamp, stamp_bits[i], fade_cache, half_life_occupied, half_life_free
             )
@@ -658,9 +663,12 @@ def faded_log_odds(
 
 
 @njit(cache=True, nogil=True, inline="always")
-def fades_by_history(history):
-    """Whether a cell of this ``POLICY_DUAL`` history fades: only a new one does."""
-    return history < HISTORY_STRUCTURE_SEEN
+def fades_by_history(history, value, l0):
+    """Whether a ``POLICY_DUAL`` cell of this history holding log-odds ``value`` fades
+    while unobserved: a new one does (toward the prior, its hits with the transient half
+    life), a void one only while it holds a hit (a transient in space seen free, fading
+    with the transient half life), structure never."""
+    return history < HISTORY_STRUCTURE_SEEN or (history == HISTORY_VOID and value > l0)
 
 
 @njit(cache=True, nogil=True)

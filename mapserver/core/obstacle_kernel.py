@@ -64,7 +64,9 @@ def classify_window(
     tile (the caller resets covered tiles to +inf first, with tile-aligned windows).
     fade_cache: scratch for ``fusion_kernel.fade``, shape (FADE_CACHE_SIZE, 3).
     history, selective: under the ``dual`` policy (selective), only the cells whose
-    history (flat grid array) says new fade (``fusion_kernel.fades_by_history``).
+    history (flat grid array) says fade (``fusion_kernel.fades_by_history``), and
+    ``half_life_occupied`` is then dual's transient half life (``BeliefGrid``'s
+    ``occupied_half_life``).
     """
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)
@@ -78,7 +80,7 @@ def classify_window(
             if math.isnan(t):
                 continue  # unknown never overwrites
             dev = value - l0
-            cell_fades = fades and (not selective or fades_by_history(history[idx]))
+            cell_fades = fades and (not selective or fades_by_history(history[idx], value, l0))
             if cell_fades and t < stamp:
                 faded = fade(value, l0, t, stamp, stamp_bits[idx], fade_cache,
                              half_life_occupied, half_life_free)  # fmt: skip

@@ -149,6 +149,13 @@ class SensorModel:
         Passes nearer their endpoint, where range noise and pose error put a face's own
         cells, do not release it. The default, 0.3 m, is 15 sigma of 2 cm range noise
         and three 0.1 m cells.
+    transient_half_life: [s] under ``dual``, the fade half life of a transient's
+        occupancy evidence while nobody observes its cell: a new cell's (not yet
+        confirmed structure) and a void cell's hit (what appears in space seen free). A
+        transient is held while it is seen and for a short while after, as the
+        Spatio-Temporal Voxel Layer expires its voxels (Macenski et al., IJARS 2020);
+        structure never fades. The default, 5 s: a saturated hit (+5) is no longer
+        occupied after 15 s unobserved, where decay's 30 s half life takes 90 s.
     """
 
     p_hit: float = 0.7
@@ -167,6 +174,7 @@ class SensorModel:
     confirm_after: float = 2.0
     confirm_within: float = 60.0
     release_margin: float = 0.3
+    transient_half_life: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("fill_between_beams", "guard_glancing_faces"):
@@ -182,6 +190,9 @@ class SensorModel:
         margin = self.release_margin
         if not (isinstance(margin, int | float) and math.isfinite(margin) and margin > 0):
             raise FieldError("release_margin", margin, "must be a positive distance in metres")
+        half_life = self.transient_half_life
+        if not (isinstance(half_life, int | float) and math.isfinite(half_life) and half_life > 0):
+            raise FieldError("transient_half_life", half_life, "must be positive seconds")
         after = self.confirm_after
         if not (isinstance(after, int | float) and math.isfinite(after) and after > 0):
             raise FieldError("confirm_after", after, "must be positive seconds")
@@ -327,6 +338,9 @@ LEGACY_SENSOR_MODEL: tuple[dict[str, Any], ...] = (
     # through (docs/dual.md): today's defaults
     # (dual's history rules changed with it; such a dir replays under today's).
     {name: _DEFAULTS[name] for name in ("confirm_within", "release_margin")},
+    # Before ``dual``'s transients faded with a half life of their own and void cells'
+    # hits faded too (docs/dual.md): today's default (such a dir replays under it).
+    {"transient_half_life": _DEFAULTS["transient_half_life"]},
 )
 """The values a sensor model recorded before a field existed was fused under, one
 mapping per change that added fields, oldest first (``fill_legacy_sensor_model``)."""

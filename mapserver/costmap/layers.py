@@ -174,7 +174,7 @@ class ObstacleLayer:
             m.l0,
             m.l_occupied,
             m.l_free,
-            d.half_life_occupied,
+            b.occupied_half_life,
             d.half_life_free,
             window,
             self.tile,

@@ -15,7 +15,7 @@ from conftest import make_scan
 from mapserver.core.belief import BeliefGrid, CellState
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Pose2D, Scan
-from mapserver.core.sensor_model import Policy, SensorModel, sigmoid
+from mapserver.core.sensor_model import DecayParams, Policy, SensorModel, sigmoid
 
 CELL = 4
 HIT, PASS = 3.5, 9.0
@@ -86,6 +86,25 @@ def test_a_cell_seen_free_many_times_then_hit_by_a_passing_person_clears_in_one_
     assert b.raw_log_odds()[0, CELL] == -5.0
 
 
+def test_a_person_in_space_seen_free_whom_nobody_sees_again_fades_as_a_transient():
+    """A void cell's last ray hit (the person turned away from every unit): held while
+    fresh, then faded with the transient half life; void still, so the next pass that
+    sees through it clears it as before, and the next hit holds it at once again."""
+    b = row_grid()
+    half_life = b.sensor_model.transient_half_life
+    fuse(b, [PASS] * 30, 0.0)
+    fuse(b, [HIT], 10.0)
+    assert b.log_odds_at(10.0 + half_life)[0, CELL] == pytest.approx(2.5, abs=1e-5)  # 5 / 2
+    # no longer occupied after log2(5 / logit(0.65)) = 3.01 half lives
+    assert state(b, 10.0 + 2.95 * half_life) is CellState.OCCUPIED
+    assert state(b, 10.0 + 3.05 * half_life) is CellState.UNKNOWN
+    assert b.void_mask()[0, CELL]
+    fuse(b, [HIT], 60.0)  # seen again: at once
+    assert state(b, 60.0) is CellState.OCCUPIED
+    fuse(b, [PASS], 61.0)  # seen through: free, and stays free unobserved (void)
+    assert state(b, 6000.0) is CellState.FREE
+
+
 def test_a_rack_face_mapped_on_one_pass_is_lethal_ten_minutes_later_unobserved():
     b = row_grid()
     for k in range(10):  # one pass by the rack: 10 scans in 1 s hit its face
@@ -98,15 +117,27 @@ def test_a_rack_face_mapped_on_one_pass_is_lethal_ten_minutes_later_unobserved()
     assert CellState(decay.states_at(600.0)[0, CELL]) is CellState.UNKNOWN  # decay forgets
 
 
-def test_a_cell_hit_by_fewer_scans_in_a_row_is_new_and_fades_as_decay_does():
+def test_a_cell_hit_by_fewer_scans_in_a_row_is_new_and_fades_as_a_transient():
     b = row_grid()
-    decay = BeliefGrid(GridGeometry(12, 1, 1.0), SensorModel(), Policy.DECAY)
+    half_life = b.sensor_model.transient_half_life
+    decay = BeliefGrid(
+        GridGeometry(12, 1, 1.0),
+        SensorModel(),
+        Policy.DECAY,
+        DecayParams(half_life_occupied=half_life),
+    )
     for grid in (b, decay):
         for k in range(9):  # a person standing 0.9 s where nobody had looked
             grid.fuse(make_scan([HIT], stamp=k / 10))
     assert not b.structure_mask()[0, CELL] and not b.void_mask()[0, CELL]
-    for t in (5.0, 60.0, 600.0):
+    held = float(b.log_odds_at(0.8)[0, CELL])  # 9 hits of 0.847, clamped
+    assert held == b.sensor_model.clamp_max
+    for t in (5.0, 60.0, 600.0):  # decay's rule with the transient half life
         assert b.log_odds_at(t)[0, CELL] == decay.log_odds_at(t)[0, CELL]
+    assert b.log_odds_at(0.8 + half_life)[0, CELL] == pytest.approx(held / 2, abs=1e-5)
+    # no longer occupied after log2(5 / logit(0.65)) = 3.01 half lives
+    assert state(b, 0.8 + 2.95 * half_life) is CellState.OCCUPIED
+    assert state(b, 0.8 + 3.05 * half_life) is not CellState.OCCUPIED
     assert state(b, 600.0) is CellState.UNKNOWN
 
 

@@ -89,24 +89,24 @@ BEFORE_DUAL = {**BEFORE_CLEARING, "fill_between_beams": True, "guard_glancing_fa
             **CORE, "p_miss_no_return": 0.4, "no_return_range": None,
             "fill_between_beams": False, "guard_glancing_faces": False,
             "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0,
-            "confirm_within": 60.0, "release_margin": 0.3,
+            "confirm_within": 60.0, "release_margin": 0.3, "transient_half_life": 5.0,
         }),
         (BEFORE_CLEARING, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": False, "guard_glancing_faces": False,
             "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0,
-            "confirm_within": 60.0, "release_margin": 0.3,
+            "confirm_within": 60.0, "release_margin": 0.3, "transient_half_life": 5.0,
         }),
         (BEFORE_DUAL, {
             **CORE, "p_miss_no_return": 0.42, "no_return_range": 3.0,
             "fill_between_beams": True, "guard_glancing_faces": True,
             "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0,
-            "confirm_within": 60.0, "release_margin": 0.3,
+            "confirm_within": 60.0, "release_margin": 0.3, "transient_half_life": 5.0,
         }),
         ({"p_hit": 0.8}, {  # no p_miss (no server wrote this): no no-return pair, as before
             "p_hit": 0.8, "fill_between_beams": False, "guard_glancing_faces": False,
             "void_threshold": 0.05, "confirm_hits": 10, "confirm_after": 2.0,
-            "confirm_within": 60.0, "release_margin": 0.3,
+            "confirm_within": 60.0, "release_margin": 0.3, "transient_half_life": 5.0,
         }),
     ],
     ids=["before-no-return", "before-clearing", "before-dual", "no-p-miss"],
@@ -134,6 +134,7 @@ def test_the_kernel_model_holds_each_value_by_name():
     model = SensorModel(
         p_hit=0.8, p_miss=0.3, prior=0.45, clamp_min=-4, clamp_max=6, p_miss_no_return=0.35,
         void_threshold=0.1, confirm_hits=7, confirm_after=3, confirm_within=12,
+        transient_half_life=4,
     )  # fmt: skip
     decay = DecayParams(half_life_occupied=20, half_life_free=90)
     record = fusion_kernel.kernel_model(model, decay, Policy.DUAL)
@@ -151,6 +152,7 @@ def test_the_kernel_model_holds_each_value_by_name():
         "confirm_hits": 7,
         "confirm_after": 3.0,
         "confirm_within": 12.0,
+        "transient_half_life": 4.0,
     }
     # Typed as the kernels are compiled for (an int would be another signature).
     assert [type(v) for v in record] == [

@@ -97,7 +97,8 @@ def test_occupied_evidence_fades_to_unknown_without_a_scan_and_bumps_the_version
 
 
 def test_under_dual_new_evidence_fades_on_schedule_and_structure_does_not():
-    belief = BeliefGrid(GEOMETRY, policy=Policy.DUAL, decay=DECAY)
+    model = SensorModel(transient_half_life=2.0)  # decay's is 2 s here too (DECAY)
+    belief = BeliefGrid(GEOMETRY, model, policy=Policy.DUAL, decay=DECAY)
     cm = costmap(belief)
     for k in range(10):  # a face hit by 10 scans in a row: structure at (12, 15)
         box = belief.fuse(make_scan([1.0], x=0.55, y=1.25, stamp=k / 10)).box
@@ -106,7 +107,7 @@ def test_under_dual_new_evidence_fades_on_schedule_and_structure_does_not():
         box = belief.fuse(make_scan([2.0], x=0.55, y=0.35, stamp=1.0)).box
         cm.update(belief.stamp, [box])
     assert cm.costs[3, 25] == LETHAL and cm.costs[12, 15] == LETHAL
-    # The person's cell: 3 * 0.847 = 2.54 falls below 0.619 after 4.07 s (as decay's);
+    # The person's cell: 3 * 0.847 = 2.54 falls below 0.619 after 4.07 s (2 s half life);
     cm.update(1.0 + 4.0)
     assert cm.costs[3, 25] == LETHAL
     cm.update(1.0 + 4.1)
