@@ -26,6 +26,7 @@ import httpx
 import pytest
 import yaml
 
+from mapserver.core.sensor_model import DEFAULT_POLICY
 from mapserver.service.settings import SettingsError, load_settings
 from scenarios.cli.main import build_parser
 from scenarios.run.embedded_server import free_port
@@ -137,7 +138,7 @@ def test_the_image_command_serves_and_passes_its_own_healthcheck(tmp_path):
         assert httpx.get(url).status_code == 401  # tokens from the environment are in force
         meta = httpx.get(url, headers={"Authorization": "Bearer reader-t"}).json()
         assert (meta["width"], meta["height"], meta["resolution"]) == (400, 300, 0.1)
-        assert meta["policy"] == "decay"
+        assert meta["policy"] == DEFAULT_POLICY.value
     finally:
         server.terminate()
         server.wait(timeout=20)

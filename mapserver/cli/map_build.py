@@ -12,7 +12,7 @@ from mapserver.cli.progress import ScanProgress
 from mapserver.cli.recording_args import add_recording_args, recording_options_from_args
 from mapserver.core.belief import BeliefGrid
 from mapserver.core.geometry import GridGeometry
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 from mapserver.store.offline import fuse_all, write_map_outputs
 from mapserver.store.recordings import Recording, open_recording
 from mapserver.store.recordings.grid_fit import fit_grid
@@ -70,7 +70,7 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
     add_sensor_model_args(build).add_argument(
         "--policy",
         choices=[p.value for p in Policy],
-        default=Policy.DECAY.value,
+        default=DEFAULT_POLICY.value,
         help="how evidence accumulates and ages",
     )
     build.set_defaults(handler=run_map_build)

@@ -25,7 +25,7 @@ from mapserver.core import fusion_kernel as kernel
 from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Pose2D, Scan
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 
 
 class CellState(IntEnum):
@@ -121,7 +121,7 @@ class BeliefGrid:
         self,
         geometry: GridGeometry,
         sensor_model: SensorModel | None = None,
-        policy: Policy | str = Policy.DECAY,
+        policy: Policy | str = DEFAULT_POLICY,
         decay: DecayParams | None = None,
         max_clearing_range: float = math.inf,
     ) -> None:

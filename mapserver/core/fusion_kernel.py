@@ -555,7 +555,9 @@ def apply_marks(buffers, box, grid, scan, model):
                         ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
                     value = log_odds[idx]
                     t = last_observed[idx]
-                    fading = policy == POLICY_DECAY or (dual and history[idx] < HISTORY_STRUCTURE_SEEN)
+                    fading = policy == POLICY_DECAY or (
+                        dual and fades_by_history(history[idx], value, l0)
+                    )
                     # Under dual, a new cell hit again with no pass since, a gap after it
                     # was last observed, stayed where it was: structure (``dual_history``).
                     stayed = (

@@ -57,16 +57,17 @@ class Policy(StrEnum):
     """How evidence accumulates and ages (docs/commands.md).
 
     - ``decay``: clamped log-odds whose evidence fades toward the prior with time since
-      the cell was last observed (the project's default).
+      the cell was last observed (the default before ``dual``).
     - ``binary``: the Nav2 obstacle-layer baseline: last ray wins; a return marks the cell
       occupied (``clamp_max``), a pass clears it (``clamp_min``); no decay; a no-return
       beam is a pass out to ``range_max`` (Nav2 with ``inf_is_valid: true``).
     - ``sticky``: log-odds with no clamp and no decay.
-    - ``dual``: structure and transients told apart per cell by its history
-      (docs/dual.md): a *new* cell as ``decay``; one hit by ``confirm_hits`` scans in a
-      row is *structure*, clamped log-odds that no longer fade while unobserved; one
-      seen free for good (``void_threshold``) is *void*, where what appears is
-      transient: the last ray wins, as in ``binary``, so one pass clears it.
+    - ``dual`` (the default, ``DEFAULT_POLICY``): structure and transients told apart
+      per cell by its history (docs/dual.md): a *new* cell as ``decay``, its hits
+      fading with ``transient_half_life``; one hit by ``confirm_hits`` scans in a row is
+      *structure*, clamped log-odds that no longer fade while unobserved; one seen free
+      for good (``void_threshold``) is *void*, where what appears is transient: the last
+      ray wins, as in ``binary``, so one pass clears it, and a hit fades as a new cell's.
     """
 
     DECAY = "decay"
@@ -83,6 +84,10 @@ class Policy(StrEnum):
             choices = ", ".join(p.value for p in cls)
             raise FieldError("policy", value, f"must be one of {choices}") from None
 
+
+DEFAULT_POLICY = Policy.DUAL
+"""The policy a server, a scenario, ``map build`` and a ``BeliefGrid`` use unless told
+(a data dir opens under the policy its map settings recorded)."""
 
 # Kernel codes for the policies (numba kernels take integers, not enums): the one table;
 # ``fusion_kernel``'s ``POLICY_*`` constants are read from it.

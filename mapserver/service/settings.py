@@ -60,7 +60,7 @@ from mapserver.core.errors import FleetmapError, dotted
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import DEFAULT_MAX_BEAMS
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 from mapserver.service.map_clock import (
     DEFAULT_MAX_LEAD_S,
     DEFAULT_MAX_SIM_RATE,
@@ -424,7 +424,7 @@ class Settings(BaseSettings):
     map_yaml: Path | None = None
     grid: GridSettings = GridSettings()
     sensor_model: SensorModelSettings = SensorModelSettings()
-    policy: Policy = Policy.DECAY
+    policy: Policy = DEFAULT_POLICY
     decay: DecaySettings = DecaySettings()
     inflation: InflationSettings = InflationSettings()
     max_clearing_range: float | None = None

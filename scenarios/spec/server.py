@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal
 from fleet.layout import Layout
 from fleet.unit import DriveLimits
 from mapserver.core.inflation import InflationParams
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 from mapserver.service.settings import (
     DecaySettings,
     GridSettings,
@@ -56,7 +56,7 @@ class MapServerFields(Section):
     """The ``map_server`` section (module docstring); the sections' values are checked
     by ``load_settings`` (so are only the given ones passed on)."""
 
-    policy: PolicyName = Policy.DECAY.value
+    policy: PolicyName = DEFAULT_POLICY.value
     resolution: number("metres", ge=0.01, le=1.0) = DEFAULT_RESOLUTION_M
     sensor_model: SensorModelFields = SensorModelFields()
     decay: DecayFields = DecayFields()

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from mapserver.core.sensor_model import DEFAULT_POLICY
 from scenarios.sweep.compare_stats import CONFIDENCE, Summary, summarise, verdict
 from scenarios.sweep.metric_values import CLEAR_KEY, map_truth_names, metric_value
 from scenarios.sweep.parallel import RunResult
@@ -33,7 +34,7 @@ __all__ = [
     "table_lines",
 ]
 
-CANDIDATE = "decay"  # the project's default policy
+CANDIDATE = DEFAULT_POLICY.value  # the project's default policy
 BASELINE = "binary"  # the Nav2 obstacle-layer baseline
 
 

@@ -27,6 +27,7 @@ from typing import Annotated, Any
 
 from pydantic import Discriminator, Field
 
+from mapserver.core.sensor_model import DEFAULT_POLICY
 from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from scenarios.spec.scenario import load_scenario
 from scenarios.spec.server import PolicyName
@@ -34,9 +35,9 @@ from scenarios.spec.yaml_lines import Document, ScenarioError, parse_yaml
 
 __all__ = ["ScenarioError", "Sweep", "SweepRun", "expand", "load_sweep", "parse_sweep"]
 
-DEFAULT_POLICIES = ("decay", "binary", "sticky")
-"""The policies a sweep or a compare runs unless told: the three baselines the README's
-tables measure (``dual``, docs/dual.md, joins them by name)."""
+DEFAULT_POLICIES = (DEFAULT_POLICY.value, "decay", "binary", "sticky")
+"""The policies a sweep or a compare runs unless told: the default and the three
+baselines the README's tables measure."""
 MAX_RUNS = 100_000
 _PARAM_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9._+-]")

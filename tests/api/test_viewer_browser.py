@@ -85,7 +85,7 @@ def test_the_page_loads_without_console_errors_and_hides_the_token(page):
     assert page.console_errors() == []
     assert page.evaluate("location.hash") == ""  # the token left the address bar
     assert page.evaluate("document.querySelector('.meta-resolution').textContent") == "0.1 m/cell"
-    assert page.evaluate("document.querySelector('.meta-policy').textContent") == "decay"
+    assert page.evaluate("document.querySelector('.meta-policy').textContent") == "dual"
 
 
 def test_the_costmap_shows_lethal_free_and_unknown_cells_in_their_colours(page, server):

@@ -96,19 +96,19 @@ def table_rows(text: str) -> dict[str, dict[str, str]]:
 
 def test_table_cells_are_mean_and_half_width_with_a_verdict_row() -> None:
     text = scenario_table(
-        "tiny", {"decay": runs([1, 2, 3]), "binary": runs([10, 12]), "sticky": runs([5])}, 3
+        "tiny", {"dual": runs([1, 2, 3]), "binary": runs([10, 12]), "sticky": runs([5])}, 3
     )
     assert "95 % Student's t interval" in text and "Mean over 3 seeds" in text
     rows = table_rows(text)
-    assert rows["decay"]["runs"] == "3"
-    assert rows["decay"]["phantom s"] == "2.0 ± 2.5"
+    assert rows["dual"]["runs"] == "3"
+    assert rows["dual"]["phantom s"] == "2.0 ± 2.5"
     assert rows["binary"]["phantom s"] == "11.0 ± 12.7"
     assert rows["sticky"]["phantom s"] == "5.0 (n=1)"
-    assert rows["decay"]["time to clear s"] == "15.0 ± 63.5 (1 never)"  # [10, 20] and a never
+    assert rows["dual"]["time to clear s"] == "15.0 ± 63.5 (1 never)"  # [10, 20] and a never
     assert rows["sticky"]["time to clear s"] == "never"
-    assert rows["decay"]["collisions"] == "-"  # no run reports it
-    assert "forgotten cells" not in rows["decay"]  # map_truth absent: no columns
-    verdicts = rows["decay vs binary"]
+    assert rows["dual"]["collisions"] == "-"  # no run reports it
+    assert "forgotten cells" not in rows["dual"]  # map_truth absent: no columns
+    verdicts = rows["dual vs binary"]
     assert verdicts["phantom s"] == "~"  # [-0.5, 4.5] and [-1.7, 23.7] overlap
     assert verdicts["phantom freezes"] == "~"  # identical values
 
@@ -124,13 +124,13 @@ def test_time_to_clear_is_empty_where_nothing_was_removed_and_never_only_where_i
 
 
 def test_table_verdicts_and_map_truth_columns() -> None:
-    decay = runs([1, 1, 1], map_truth=truth(1.0))
+    dual = runs([1, 1, 1], map_truth=truth(1.0))
     binary = runs([4, 4, 4], map_truth=truth(3.0))
     binary[0]["tasks_completed"] = binary[1]["tasks_completed"] = binary[2]["tasks_completed"] = 2
-    rows = table_rows(scenario_table("tiny", {"decay": decay, "binary": binary}, 3))
-    assert rows["decay"]["forgotten cells"] == "1.0 ± 0.0"
-    assert rows["decay"]["unknown share"] == "0.250 ± 0.000"
-    verdicts = rows["decay vs binary"]
+    rows = table_rows(scenario_table("tiny", {"dual": dual, "binary": binary}, 3))
+    assert rows["dual"]["forgotten cells"] == "1.0 ± 0.0"
+    assert rows["dual"]["unknown share"] == "0.250 ± 0.000"
+    verdicts = rows["dual vs binary"]
     assert verdicts["phantom s"] == "better"  # lower is better
     assert verdicts["tasks"] == "better"  # 4 > 2: higher is better
     assert verdicts["forgotten cells"] == "better"

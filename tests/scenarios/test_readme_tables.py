@@ -22,7 +22,7 @@ from scenarios.sweep.sweep_file import expand
 
 TEXT = """# A readme
 
-<!-- compare:begin small: a.yaml b.yaml --seeds 2 --policies decay,binary -->
+<!-- compare:begin small: a.yaml b.yaml --seeds 2 --policies dual,binary -->
 old table
 <!-- compare:end small -->
 after
@@ -33,7 +33,7 @@ def test_a_block_names_its_compare_and_is_rewritten_in_place(tmp_path: Path) -> 
     (block,) = blocks(TEXT, tmp_path)
     assert block.name == "small"
     assert [p.name for p in block.sweep.scenarios] == ["a.yaml", "b.yaml"]
-    assert block.sweep.policies == ("decay", "binary") and block.sweep.seeds == (0, 1)
+    assert block.sweep.policies == ("dual", "binary") and block.sweep.seeds == (0, 1)
     assert TEXT[block.start : block.end] == "old table\n"
     assert rewrite(TEXT, block, "new\n") == TEXT.replace("old table\n", "new\n")
 
@@ -42,7 +42,7 @@ def test_a_block_without_its_end_or_with_bad_arguments_is_refused(tmp_path: Path
     with pytest.raises(ReadmeError, match="compare:end small"):
         blocks(TEXT.replace("<!-- compare:end small -->", ""), tmp_path)
     with pytest.raises(ReadmeError, match="bad compare arguments"):
-        blocks(TEXT.replace("decay,binary", "decay,greedy"), tmp_path)
+        blocks(TEXT.replace("dual,binary", "dual,greedy"), tmp_path)
 
 
 def test_the_markdown_is_a_table_per_scenario_under_its_name(tmp_path: Path) -> None:
@@ -53,9 +53,9 @@ def test_the_markdown_is_a_table_per_scenario_under_its_name(tmp_path: Path) -> 
     text = block_markdown(block, results)
     first, second = text.split("\n\n`b`:\n\n")
     assert first.startswith("`a`:\n\n| policy | runs | phantom freezes | phantom s |")
-    assert "| decay | 2 | - | 2.0 ± 0.0 |" in first
+    assert "| dual | 2 | - | 2.0 ± 0.0 |" in first
     assert "| 0.5 ± 6.4 |" in second and "| - |" in second  # tasks; nothing removed
-    assert text.endswith("| decay vs binary | |" + " ~ |" * 12 + "\n")  # 12 headline columns
+    assert text.endswith("| dual vs binary | |" + " ~ |" * 12 + "\n")  # 12 headline columns
 
 
 def test_runs_are_read_from_an_earlier_compare_or_named_missing(tmp_path: Path) -> None:

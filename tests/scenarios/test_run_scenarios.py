@@ -39,7 +39,7 @@ def first_run(tmp_path_factory):
 def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     out, metrics = first_run
     assert CONTRACT_KEYS <= set(metrics)
-    assert metrics["scenario"] == "tiny" and metrics["policy"] == "decay"
+    assert metrics["scenario"] == "tiny" and metrics["policy"] == "dual"  # the default
     assert metrics["sim_seconds"] == pytest.approx(20.0)
     assert metrics["scans_fused"] == 2 * 20 * 10  # two units at 10 Hz
     assert len(metrics["time_to_clear_s"]) == 1  # one removal event

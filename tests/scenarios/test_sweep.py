@@ -77,9 +77,9 @@ duration: 5
 def test_defaults_all_policies_seed_zero_and_no_parameter_folder(tmp_path: Path) -> None:
     tiny5(tmp_path)
     runs = expand(load_sweep(write_sweep(tmp_path, "scenarios: [tiny5.yaml]\n")))
-    assert [r.policy for r in runs] == ["decay", "binary", "sticky"]
+    assert [r.policy for r in runs] == ["dual", "decay", "binary", "sticky"]
     assert {r.seed for r in runs} == {0}
-    assert runs[0].folder() == Path("tiny5", "decay", "seed0")
+    assert runs[0].folder() == Path("tiny5", "dual", "seed0")
     assert runs[0].overrides() == {}
 
 

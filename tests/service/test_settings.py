@@ -13,7 +13,7 @@ import yaml
 
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 from mapserver.service.settings import (
     Role,
     Settings,
@@ -52,7 +52,7 @@ def test_defaults_are_the_documented_ones() -> None:
     assert s.map_yaml is None and s.static_map() is None
     assert s.geometry() == GridGeometry(2000, 1000, 0.05, 0.0, 0.0)  # 100 m x 50 m
     assert s.build_sensor_model() == SensorModel()
-    assert s.policy is Policy.DECAY
+    assert s.policy is DEFAULT_POLICY is Policy.DUAL
     assert s.build_decay() == DecayParams(30.0, 120.0, 0.05)
     assert s.build_inflation() == InflationParams(0.55, 10.0, 0.3, False)
     assert s.clearing_range() == math.inf

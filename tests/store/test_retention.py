@@ -17,6 +17,7 @@ from server_helpers import ServerProcess, scan_body, small_settings
 from test_journal_faults import noisy_ranges, sql
 
 from mapserver.core.scan import Scan
+from mapserver.core.sensor_model import DEFAULT_POLICY
 from mapserver.service.map_service import MapService, _check_map_settings, _map_settings
 from mapserver.service.replay import ReplayError, replay_journal
 from mapserver.store import journal as journal_module
@@ -50,7 +51,7 @@ def validated(i: int, unit: str = "u1") -> dict:
     return Scan.from_dict(body(i, unit)).journal_record()
 
 
-def retaining(data: Path, policy: str = "decay", **journal) -> MapService:
+def retaining(data: Path, policy: str = DEFAULT_POLICY.value, **journal) -> MapService:
     settings = {"snapshot_every_scans": 25, "retain_seconds": None, **journal}
     return MapService(small_settings(data, journal=settings, policy=policy))
 
