@@ -272,9 +272,15 @@ def mark_scan(marks, grid, scan, ranges, box):
                 marks[rr * width + c] = MARK_HIT
         # Step 2: free cells along the beam, clipped to the map.
         cut = 0.0
+        clear_short = release_margin  # [m] how far short of its endpoint it marks CLEAR
         if is_return and glance_margin > 0.0:
             cut = glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, glance_margin)
-            if not cut < r:
+            if cut == SURFACE_UNKNOWN:
+                # It clears up to its endpoint, but what it crosses within the cap of it
+                # may be the face it glances along: not CLEAR (void is for good).
+                cut = 0.0
+                clear_short = max(release_margin, GLANCE_CAP_CELLS * glance_margin)
+            elif not cut < r:
                 continue  # the whole beam glances along the surface it hit
         if not (math.isfinite(ex) and math.isfinite(ey)):
             continue  # no direction (an infinite angle): the beam says nothing
@@ -297,7 +303,7 @@ def mark_scan(marks, grid, scan, ranges, box):
                 max_cells = _cells_to(t_cut, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1)
         _trace(marks, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
         if is_return and release_margin > 0.0:  # the prefix that ends release_margin short
-            t_clear = 1.0 - max(cut, release_margin) / r
+            t_clear = 1.0 - max(cut, clear_short) / r
             if t_clear > t0:
                 clear_cells = -1
                 if t_clear < t1:
@@ -327,6 +333,7 @@ def _cells_to(t, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1):
 
 
 GLANCE_CAP_CELLS = 10.0
+SURFACE_UNKNOWN = -1.0  # ``glance_cutoff``'s answer where no surface is outlined
 """[cells] the most a return's clearing is cut short by ``glance_cutoff``."""
 
 
@@ -345,21 +352,26 @@ def glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, margin):
     (i - 1, i + 1) and this one outline a straight face, the segments a -> this -> b
     bending by ``GLANCE_MAX_BEND`` at most and a -> b at least two cells (``2 * margin``)
     long, longer than range noise can fake; alpha is the angle between the beam and
-    a -> b. No cut otherwise: next to a no-return, at an occlusion edge (a neighbour on
-    another surface bends the outline), and near the sensor, where neighbours are closer
-    than the noise. sin_step, cos_step: of the angle between neighbouring beams. A beam
-    glancing along a face crosses the slivers of the face's cells before it hits the face
-    farther on; without the cut, those passes wear away a face that square beams keep
-    hitting (docs/clearing.md).
+    a -> b. No cut otherwise. Next to a no-return or an invalid beam, and at an
+    occlusion edge (a neighbour on another surface bends the outline), the answer is
+    ``SURFACE_UNKNOWN``: ``mark_scan`` then clears up to the endpoint but marks nothing
+    ``MARK_CLEAR`` within the cap of it. A beam grazing a face 17 m out at 1 degree
+    resolution often has a no-return neighbour, and the face it glances along would turn
+    void. Near the sensor, where neighbours are closer than the noise, and at the first
+    and last beams, the answer is 0 (no cut): the surface is seen, only not measured.
+    sin_step, cos_step: of the angle between neighbouring beams. A beam glancing along a
+    face crosses the slivers of the face's cells before it hits the face farther on;
+    without the cut, those passes wear away a face that square beams keep hitting
+    (docs/clearing.md).
     """
     if i < 1 or i + 1 >= ranges.shape[0]:
         return 0.0
     before = ranges[i - 1]
     after = ranges[i + 1]
     if not (before >= range_min and before <= range_max):
-        return 0.0
+        return SURFACE_UNKNOWN
     if not (after >= range_min and after <= range_max):
-        return 0.0
+        return SURFACE_UNKNOWN
     r = ranges[i]
     # In beam i's frame (this endpoint at (r, 0)): the neighbours' endpoints a and b.
     ax = before * cos_step - r
@@ -374,7 +386,7 @@ def glance_cutoff(ranges, i, range_min, range_max, sin_step, cos_step, margin):
     if not (la > 0.0 and lb > 0.0 and chord >= 2.0 * margin):
         return 0.0
     if (-ax * bx - ay * by) / (la * lb) < GLANCE_MAX_BEND:  # a -> this vs this -> b
-        return 0.0
+        return SURFACE_UNKNOWN
     sin_alpha = abs(dy) / chord
     if not sin_alpha > 0.0 or sin_alpha >= 1.0:
         return 0.0
