@@ -134,7 +134,10 @@ def _cell(cell: BlockingCell) -> str:
     p_occ = "unknown" if cell.p_occ is None else f"{cell.p_occ:.2f}"
     seen = "never" if cell.last_observed is None else f"{cell.last_observed:.2f} s"
     marked = ", ".join(f"{unit}@{stamp:.2f}" for unit, stamp in cell.marked_by) or "no scan"
-    return f"{_xy(cell.x, cell.y)} truth {truth}, p_occ {p_occ}, seen {seen}, marked by {marked}"
+    text = f"{_xy(cell.x, cell.y)} truth {truth}, p_occ {p_occ}, seen {seen}, marked by {marked}"
+    if cell.held_by:
+        text += " (inscribed by " + "; ".join(_cell(c) for c in cell.held_by) + ")"
+    return text
 
 
 def _xy(x: float, y: float) -> str:

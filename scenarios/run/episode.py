@@ -356,7 +356,7 @@ class Episode:
             classify(freeze, timeline, plan, lane_plan=lanes)
         self.record.freezes = freeze_records(
             watch.detector.freezes, self.agents, self.coordinator, self.truth,
-            watch.evidence, self.standard.scans.index,
+            watch.evidence, self.standard.scans.index, watch.held_by,
         )  # fmt: skip
         self.record.time_to_clear = {
             w.object_id: t

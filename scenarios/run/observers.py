@@ -36,6 +36,7 @@ from scenarios.score.incidents import (
     contact_cells,
     cost_class,
 )
+from scenarios.score.inscribing import inscribing_cells
 from scenarios.score.map_truth import footprints, measure, reachable_floor
 from scenarios.score.throughput import ThroughputTracker
 
@@ -177,11 +178,14 @@ class CollisionWatch(_Observer):
 class FreezeWatch(_Observer):
     """The freeze detector (``planner.freeze``), fed every unit's state each step, and
     the map's evidence of each blocking cell, read when a unit is first blocked by it
-    (``evidence``: (unit, point) -> (stamp, CellOut))."""
+    (``evidence``: (unit, point) -> [(stamp, CellOut)]); for an INSCRIBED blocking cell
+    also the LETHAL cells that inscribe it (``held_by``: (unit, point) -> [(stamp,
+    points)], ``scenarios.score.inscribing``), whose evidence is read with it."""
 
     def __init__(self) -> None:
         self.detector = FreezeDetector()
         self.evidence: dict = {}
+        self.held_by: dict = {}
 
     def observe(self, episode: Episode) -> None:
         report = episode.report
@@ -210,9 +214,17 @@ class FreezeWatch(_Observer):
         since = self.detector.open_since(uid)
         since = now if since is None else since
         new = [p for p in points if not any(s >= since for s, _ in self.evidence.get((uid, p), ()))]
-        if new:
-            for point, info in zip(new, episode.synced().query_cells(new), strict=True):
-                self.evidence.setdefault((uid, point), []).append((now, info))
+        if not new:
+            return
+        radius = episode.setup.inflation().inscribed_radius
+        costs = episode.costs.data
+        read = list(new)
+        for point in new:
+            sources = inscribing_cells(costs, episode.geometry, point, radius)
+            self.held_by.setdefault((uid, point), []).append((now, sources))
+            read += [s for s in sources if s not in read]
+        for point, info in zip(read, episode.synced().query_cells(read), strict=True):
+            self.evidence.setdefault((uid, point), []).append((now, info))
 
 
 class Throughput(_Observer):

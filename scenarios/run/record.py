@@ -157,8 +157,10 @@ class ScanSample:
 @dataclass(frozen=True)
 class BlockingCell:
     """A cell that blocked a frozen unit: where [m], whether it was truly occupied then
-    (ground truth), its p_occ (None unknown), last_observed [s] and the scans (unit,
-    stamp) that last marked it."""
+    (ground truth), its p_occ (None unknown), last_observed [s], the scans (unit,
+    stamp) that last marked it and, for a cell that blocked by inflation (INSCRIBED), the
+    LETHAL cells that inscribe it, each with its own evidence
+    (``scenarios.score.inscribing``)."""
 
     x: float
     y: float
@@ -166,6 +168,7 @@ class BlockingCell:
     p_occ: float | None
     last_observed: float | None
     marked_by: tuple[tuple[str, float], ...]
+    held_by: tuple[BlockingCell, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
 """A freeze with its evidence, for ``freezes.json`` and the replay: the blocking cells
-(ground truth, p_occ, last_observed, the scans that last observed them), the blocked
+(ground truth, p_occ, last_observed, the scans that last observed them, and the LETHAL
+cells that inscribe an INSCRIBED one, with the same evidence), the blocked
 lanes of a lane freeze (``scenarios.score.lane_evidence`` names them and their cells) and the
 recovery actions the unit and the coordinator took meanwhile."""
 
@@ -21,6 +22,8 @@ Reading = tuple[float, object]
 Evidence = Mapping[tuple[str, tuple[float, float]], Reading | Sequence[Reading]]
 # stamp [s] -> [(unit_id, x, y, range_max)] of the scans taken then
 ScanIndex = Mapping[float, Sequence[tuple[str, float, float, float]]]
+# (unit_id, point) -> [(stamp [s] read, the LETHAL cells that inscribed it then)]
+HeldBy = Mapping[tuple[str, tuple[float, float]], Sequence[tuple[float, tuple]]]
 
 
 def freeze_records(
@@ -30,12 +33,14 @@ def freeze_records(
     truth: GroundTruth,
     evidence: Evidence,
     scans: ScanIndex,
+    held_by: HeldBy | None = None,
 ) -> list[FreezeRecord]:
-    """One FreezeRecord per classified freeze, in start order."""
+    """One FreezeRecord per classified freeze, in start order; ``held_by`` names the
+    LETHAL cells behind each INSCRIBED blocking cell (none when not given)."""
     records = []
     for freeze in sorted(freezes, key=lambda f: (f.start, f.unit_id)):
         cells = tuple(
-            _blocking_cell(point, _reading(freeze, point, evidence), truth, scans)
+            _blocking_cell(freeze, point, evidence, truth, scans, _sources(freeze, point, held_by))
             for point in freeze.blocking_points
         )
         x, y = freeze.position or (math.nan, math.nan)
@@ -56,9 +61,10 @@ def freeze_records(
     return records
 
 
-def _reading(freeze: Freeze, point, evidence: Evidence) -> Reading:
+def _reading(freeze: Freeze, point, evidence: Evidence | HeldBy) -> Reading:
     """The map's reading of ``point`` for this freeze: the first one taken during it, else
-    the last one before it (a single reading is used as it is)."""
+    the last one before it (a single reading is used as it is). ``held_by``'s readings
+    are chosen the same way."""
     value = evidence[(freeze.unit_id, point)]
     if isinstance(value, tuple):
         return value
@@ -71,8 +77,17 @@ def _reading(freeze: Freeze, point, evidence: Evidence) -> Reading:
     return min(value, key=lambda r: r[0])
 
 
-def _blocking_cell(point, reading: Reading, truth: GroundTruth, scans: ScanIndex) -> BlockingCell:
-    seen_at, info = reading
+def _sources(freeze: Freeze, point, held_by: HeldBy | None) -> tuple:
+    """The LETHAL cells that inscribed ``point`` when this freeze read it (none known)."""
+    if not held_by or (freeze.unit_id, point) not in held_by:
+        return ()
+    return _reading(freeze, point, held_by)[1]
+
+
+def _blocking_cell(
+    freeze: Freeze, point, evidence: Evidence, truth: GroundTruth, scans: ScanIndex, sources=()
+) -> BlockingCell:
+    seen_at, info = _reading(freeze, point, evidence)
     truly = bool(truth.is_occupied(np.array([point]), at=seen_at)[0])
     last = info.last_observed
     marked_by: tuple[tuple[str, float], ...] = ()
@@ -82,7 +97,8 @@ def _blocking_cell(point, reading: Reading, truth: GroundTruth, scans: ScanIndex
             for uid, sx, sy, reach in scans.get(last, ())
             if math.dist((sx, sy), point) <= reach
         )
-    return BlockingCell(point[0], point[1], truly, info.p_occ, last, marked_by)
+    held_by = tuple(_blocking_cell(freeze, s, evidence, truth, scans) for s in sources)
+    return BlockingCell(point[0], point[1], truly, info.p_occ, last, marked_by, held_by)
 
 
 def _recovery(freeze: Freeze, agent, coordinator: LaneCoordinator) -> tuple[RecoveryStep, ...]:

@@ -14,7 +14,8 @@ A JSON list, one object per freeze, ordered by start time then unit, keys in thi
      "lanes": [],
      "blocking_cells": [
         {"x": 12.875, "y": 3.125, "truly_occupied": false, "p_occ": 0.9241,
-         "last_observed": 38.75, "marked_by": [{"unit": "u1", "stamp": 38.75}]}],
+         "last_observed": 38.75, "marked_by": [{"unit": "u1", "stamp": 38.75}],
+         "held_by": []}],
      "recovery": [{"stamp": 42.25, "action": "turn_in_place", "cause": "path blocked"}]}
 
 Units: times [s] of sim time, positions [m] in the map frame. ``segments``: the freeze's
@@ -26,7 +27,12 @@ began the segment. ``phantom_s``/``true_block_s`` sum them; ``phantom``/``true_b
 the freeze has some seconds of that kind (a freeze at a pod that is moved away while
 the unit waits has both). ``p_occ`` and ``last_observed`` are null for a cell never
 observed.
-``marked_by``: the scans (unit, stamp) that last marked the cell occupied.
+``marked_by``: the scans (unit, stamp) that last marked the cell occupied. ``held_by``:
+for a cell that blocked by inflation (cost INSCRIBED: free or unknown itself, within the
+inscribed radius of an occupied cell), the LETHAL cells within that radius, nearest
+first, at most 3, each an object of these keys (its own ``held_by`` empty): their
+evidence is what held the unit (``scenarios.score.inscribing``); ``[]`` for a LETHAL
+cell.
 ``lanes``: for a lane freeze (the lane coordinator had no lane for the unit: "no lane
 to ...", "stranded on a blocked lane"), the blocked lanes that held it, each ``[a, b]``
 (its node ids, sorted; ``scenarios.score.lane_evidence`` says which), and then
@@ -93,6 +99,7 @@ def _cell(cell: BlockingCell) -> dict[str, Any]:
         "marked_by": [
             {"unit": unit, "stamp": _round(stamp, TIME_DECIMALS)} for unit, stamp in cell.marked_by
         ],
+        "held_by": [_cell(source) for source in cell.held_by],
     }
 
 

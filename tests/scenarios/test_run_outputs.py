@@ -144,7 +144,15 @@ def make_record() -> RunRecord:
             2.0,
             (
                 BlockingCell(4.125, 3.125, False, 0.912345678, 2.9, (("u1", 2.9), ("u2", 2.0))),
-                BlockingCell(4.375, 3.125, False, None, None, ()),
+                BlockingCell(
+                    4.375,
+                    3.125,
+                    False,
+                    None,
+                    None,
+                    (),
+                    held_by=(BlockingCell(4.375, 3.375, False, 0.95, 2.5, (("u2", 2.5),)),),
+                ),  # inscribed by a phantom the map holds 0.25 m away
             ),
             (
                 RecoveryStep(4.0, "turn_in_place", "look again"),
@@ -227,11 +235,17 @@ def test_freezes_json_lists_every_freeze_with_its_evidence_in_start_order(record
     assert phantom["start"] == 3.5 and phantom["duration"] == 2.5
     assert phantom["position"] == {"x": 1.7, "y": 2.0}
     cell, unseen = phantom["blocking_cells"]
-    assert list(cell) == ["x", "y", "truly_occupied", "p_occ", "last_observed", "marked_by"]
+    assert list(cell) == [
+        "x", "y", "truly_occupied", "p_occ", "last_observed", "marked_by", "held_by"
+    ]  # fmt: skip
+    assert cell["held_by"] == []  # occupied itself
     assert cell["truly_occupied"] is False
     assert cell["p_occ"] == 0.9123  # rounded to 1e-4
     assert cell["marked_by"] == [{"unit": "u1", "stamp": 2.9}, {"unit": "u2", "stamp": 2.0}]
     assert unseen["p_occ"] is None and unseen["last_observed"] is None
+    (source,) = unseen["held_by"]  # blocked by inflation: what inscribed it, with its evidence
+    assert (source["x"], source["y"], source["p_occ"]) == (4.375, 3.375, 0.95)
+    assert source["marked_by"] == [{"unit": "u2", "stamp": 2.5}] and source["held_by"] == []
     assert phantom["recovery"] == [
         {"stamp": 4.0, "action": "turn_in_place", "cause": "look again"},
         {"stamp": 5.0, "action": "replan", "cause": "still blocked"},
@@ -542,6 +556,10 @@ def test_replay_log_explains_each_freeze(replay):
     assert phantom["timestamp"] == {"sec": 3, "nsec": 500_000_000}
     assert "(4.12, 3.12) truth free, p_occ 0.91" in phantom["message"]
     assert "marked by u1@2.90, u2@2.00" in phantom["message"]
+    assert (
+        "(4.38, 3.12) truth free, p_occ unknown, seen never, marked by no scan "
+        "(inscribed by (4.38, 3.38) truth free, p_occ 0.95, seen 2.50 s, marked by u2@2.50)"
+    ) in phantom["message"]
     assert "turn_in_place at 4.00 s" in phantom["message"]
     true_block = next(d for d in logs if "true-block" in d["message"])
     assert true_block["name"] == "u2" and true_block["level"] == 2  # INFO
