@@ -157,8 +157,9 @@ HISTORY_VOID = 255  # seen free for good (log-odds below l_void once): hits are 
 def dual_history(history, mark, value, l_void, confirm_hits, stayed):
     """A cell's next history under POLICY_DUAL after an update with ``mark`` left
     log-odds ``value``: void for good once ``value < l_void``; else a new cell counts
-    the scans in a row that hit it (a pass resets the count; a no-return beam, which saw
-    nothing, leaves it) and is structure at ``confirm_hits``, or at once when it
+    the scans in a row that hit it (a clear pass, ``MARK_CLEAR``, resets the count; a pass
+    near its endpoint, where range noise puts a face's own cells, and a no-return beam,
+    which saw nothing, leave it) and is structure at ``confirm_hits``, or at once when it
     ``stayed`` (hit again, with no pass since, ``confirm_after`` to ``confirm_within`` [s]
     after it was last observed: a recording that scans slowly). Structure stays structure unless
     two scans in a row see clear through it (``MARK_CLEAR``: a return that ends at least
@@ -179,7 +180,7 @@ def dual_history(history, mark, value, l_void, confirm_hits, stayed):
         return HISTORY_STRUCTURE
     if mark == MARK_HIT:
         return HISTORY_STRUCTURE if history + 1 >= confirm_hits else history + 1
-    if mark == MARK_FREE or mark == MARK_CLEAR:
+    if mark == MARK_CLEAR:
         return 0
     return history
 
@@ -504,13 +505,14 @@ def apply_marks(buffers, box, grid, scan, model):
     - sticky: ``L <- L + w * (l - l0)``, no clamp, no fade;
     - binary: ``L <- clamp_max`` on HIT, ``clamp_min`` on FREE or NO_RETURN (last ray
       wins).
-    - dual, by the cell's history (``dual_history``): a *new* cell as decay, but a pass
-      of a return through it first drops what evidence of occupancy it held (seen
-      through before it was confirmed, it held a transient); a *structure* cell (hit by
-      ``confirm_hits`` scans in a row, or hit again with no pass since ``confirm_after``
-      [s] after it was last observed) as decay without the fade; a *void* cell (its
-      ``L`` fell below ``l_void`` once) by the binary rule: what appears in space seen
-      free is transient and one pass clears it (docs/dual.md).
+    - dual, by the cell's history (``dual_history``): a *new* cell as decay (its
+      occupancy fading with ``transient_half_life``), but a clear pass (``MARK_CLEAR``)
+      through it first drops what evidence of occupancy it held (seen through before it
+      was confirmed, it held a transient); a *structure* cell (hit by ``confirm_hits``
+      scans in a row, or hit again with no pass since ``confirm_after`` [s] after it was
+      last observed) as decay without the fade; a *void* cell (its ``L`` fell below
+      ``l_void`` once) by the binary rule: what appears in space seen free is transient
+      and one pass clears it (docs/dual.md); its hit fades as a new cell's.
     The pose weight ``w = res^2 / (res^2 + var_xy + d^2 * var_yaw)`` where d [m] is the
     cell centre's distance from the sensor: the share of a Gaussian-blurred update that
     stays in the cell (w = 1 exactly when both variances are 0).
@@ -592,12 +594,9 @@ def apply_marks(buffers, box, grid, scan, model):
                     # row: what it held was transient (``dual_history``).
                     if (
                         dual
-                        and passed
+                        and mark == MARK_CLEAR
                         and value > l0
-                        and (
-                            fading
-                            or (history[idx] == HISTORY_STRUCTURE_SEEN and mark == MARK_CLEAR)
-                        )
+                        and (fading or history[idx] == HISTORY_STRUCTURE_SEEN)
                     ):
                         value = l0
                     if policy == POLICY_STICKY:

@@ -141,6 +141,28 @@ def test_a_cell_hit_by_fewer_scans_in_a_row_is_new_and_fades_as_a_transient():
     assert state(b, 600.0) is CellState.UNKNOWN
 
 
+def test_a_pass_near_its_end_neither_resets_the_count_nor_drops_what_a_new_cell_held():
+    """Range noise at a face: a beam that lands just beyond the face cell (within
+    release_margin of it) passes through it. That is no evidence the cell is empty
+    (DUFOMap's shortened ray), so the face's count of hits in a row goes on and only the
+    textbook -0.405 comes off; a pass that ends far beyond it does both."""
+    b = row_grid()
+    fuse(b, [HIT] * 5, 0.0)
+    fuse(b, [NEAR_DEFAULT], 0.1)  # ends 0.2 m beyond the cell
+    faded = 5 * math.log(0.7 / 0.3) * 2 ** (-0.1 / b.sensor_model.transient_half_life)
+    assert b.raw_log_odds()[0, CELL] == pytest.approx(faded - math.log(1.5), abs=1e-5)
+    fuse(b, [HIT] * 4, 0.2)
+    assert not b.structure_mask()[0, CELL]  # 9 hits so far
+    fuse(b, [HIT], 0.3)
+    assert b.structure_mask()[0, CELL]  # the 10th: the near pass did not reset the count
+    other = row_grid()
+    fuse(other, [HIT] * 5, 0.0)
+    fuse(other, [PASS], 0.1)  # ends 4.5 m beyond: seen through
+    assert other.raw_log_odds()[0, CELL] == pytest.approx(math.log(0.4 / 0.6), abs=1e-6)
+    fuse(other, [HIT] * 5, 0.2)
+    assert not other.structure_mask()[0, CELL]  # counted from 0 again: 5 of 10
+
+
 def test_a_new_cell_seen_through_loses_what_it_held_in_one_pass():
     b = row_grid()
     for k in range(9):  # the person of the test above, then the next scan sees through
