@@ -281,8 +281,8 @@ def mark_scan(marks, grid, scan, ranges, box):
                 # may be the face it glances along: not CLEAR (void is for good).
                 cut = 0.0
                 clear_short = max(release_margin, GLANCE_CAP_CELLS * glance_margin)
-            elif not cut < r:
-                continue  # the whole beam glances along the surface it hit
+            if not cut < r:
+                continue  # the whole beam glances along the surface it hit (or r is 0)
         if not (math.isfinite(ex) and math.isfinite(ey)):
             continue  # no direction (an infinite angle): the beam says nothing
         ok, t0, t1, c0, r0, c1, r1 = clipped_cells(
@@ -303,7 +303,7 @@ def mark_scan(marks, grid, scan, ranges, box):
             if t_cut < t1:
                 max_cells = _cells_to(t_cut, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1)
         _trace(marks, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
-        if is_return and release_margin > 0.0:  # the prefix that ends release_margin short
+        if is_return and release_margin > 0.0 and r > 0.0:  # the prefix release_margin short
             t_clear = 1.0 - max(cut, clear_short) / r
             if t_clear > t0:
                 clear_cells = -1
