@@ -8,10 +8,13 @@ order (highest first):
 - priority: the time [s] since the unit was given its current leg (``request``), so it
   rises while the unit has not reached its goal and resets when it gets the next one;
   ties by the requested priority (higher first), then the natural unit id. A unit parked
-  at its goal, or with no route, never decides on its own: it only moves when pushed.
+  at its goal, or with no route, never decides on its own: it only moves when pushed; a
+  parked unit pushed off its goal keeps it and drives back to it, its priority counted
+  from the push (it parked there: its leg was done).
 - candidates: the node's successors over unblocked edges, and staying put, sorted by
-  the least-weight distance [m] from the candidate to the unit's goal (ties: the next
-  node of its route, then not a crossing, then the node id). A unit stays when staying
+  the least-weight distance [m] from the candidate to the unit's goal (ties: a node
+  nobody else holds, as in the authors' implementations, then the next node of its
+  route, off the pushing unit's route, not a crossing, then the node id). A unit stays when staying
   ranks before every candidate it can have.
 - a candidate node another unit has claimed this tick is out; so is one whose way is
   held by a unit that cannot move (an ancestor in the current chain of pushes, a unit
@@ -30,10 +33,12 @@ holder's body has left it, so a pushed unit moves first and the pushing unit is 
 the node on a later tick (a unit never follows into a node in the same tick, and a ring
 of units cannot rotate at once: a ring is resolved by one of its units stepping out).
 Corridor claims and lane holds are kept: their holders count as blockers like a node's
-holder. The nodes claimed by waiting units (``_intents``) are also withheld from units
-reserving ahead, so moving units cannot starve a waiting unit. A unit moved off its
-route is given a new route from its new node. The deadlock breaker
-(``planner.policy_deadlocks``) still runs after the round as a logged safety net.
+holder; a unit claims the corridor of the edge it wants when it decides (unless another
+unit claims it the other way), so its stale claim from the edge it last drove does not
+stop the units it pushes ahead of it. The nodes claimed by waiting units (``_intents``)
+are also withheld from units reserving ahead, so moving units cannot starve a waiting
+unit. A unit moved off its route is given a new route from its new node. The deadlock
+breaker (``planner.policy_deadlocks``) still runs after the round as a logged safety net.
 
 Determinism: units in the order above, candidates in sorted order; ``now`` is the tick's.
 """
@@ -80,9 +85,7 @@ class Pibt:
                 if len(u.route) < 2:
                     continue
             self._pibt(tick, r, u, None)
-        self._intents = {
-            n: uid for n, uid in r.wanted.items() if self._units[uid].edge is None
-        }
+        self._intents = {n: uid for n, uid in r.wanted.items() if self._units[uid].edge is None}
 
     def _pibt_rank(self, u: _Unit, now: float) -> tuple[object, ...]:
         """Sort key: longest since its leg began first, then requested priority, id."""
@@ -108,11 +111,10 @@ class Pibt:
                     first_block = first_block or (m, blockers)
                     continue
                 r.wanted[m] = u.uid
-                if any(
-                    k == PUSH and not self._pibt(tick, r, self._units[b], u)
-                    for b, k in zip(blockers, kinds, strict=True)
-                ):
+                before = self._pibt_claim(u, v, m, tick.now)
+                if not all(self._pushed(tick, r, b, u) for b in blockers):
                     del r.wanted[m]
+                    self.table.restore_claim(u.uid, before)
                     first_block = first_block or (m, blockers)
                     continue
                 r.decided[u.uid] = True
@@ -128,6 +130,25 @@ class Pibt:
             return False
         finally:
             r.chain.pop()
+
+    def _pushed(self, tick: _Tick, r: _Round, uid: str, parent: _Unit) -> bool:
+        """Make blocker ``uid`` of ``parent``'s candidate leave if it must (an earlier
+        push may already have decided it): False if it will not leave."""
+        kind = self._blocker_kind(r, uid)
+        if kind == PUSH:
+            return self._pibt(tick, r, self._units[uid], parent)
+        return kind == MOVING
+
+    def _pibt_claim(self, u: _Unit, v: str, m: str, now: float) -> tuple[int, int, float] | None:
+        """Claim the corridor of edge (v, m) along it for ``u``, which wants to drive it,
+        unless another unit claims it the other way; returns the claim it had (to put
+        back if ``u`` does not go). A standing unit's claim is that of the last edge it
+        drove, which may point the other way and would stop the units it pushes."""
+        before = self.table.claim_of(u.uid)
+        d = self.graph.graph.edges[v, m]
+        if not self.table.claimants(d["corridor"], -d["heading"]) - {u.uid}:
+            self.table.claim(u.uid, d["corridor"], d["heading"], now)
+        return before
 
     def _blocker_kind(self, r: _Round, uid: str) -> str:
         """PUSH, MOVING or HARD (module docstring) for a unit in a candidate's way."""
@@ -154,6 +175,7 @@ class Pibt:
             options,
             key=lambda m: (
                 dist.get(m, math.inf),
+                self.table.holder(m) not in (None, u.uid),
                 m != nxt,
                 m in avoid,
                 m in self._crossings,
@@ -180,9 +202,9 @@ class Pibt:
         """Grant ``u`` the edge to ``m``, with a new route when ``m`` is off its route."""
         v = u.route[0]
         if self._standing(u):
-            if self._parked.get(v) == u.uid:  # a parked unit parks where it is pushed
+            if self._parked.get(v) == u.uid:  # pushed off its goal: it comes back to it
                 del self._parked[v]
-                u.goal = m
+                u.since = tick.now
             path = self._plan(m, u.goal) or [m]
             u.route = [v, *path]
         elif u.route[1] != m:
