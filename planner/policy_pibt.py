@@ -9,8 +9,8 @@ order (highest first):
   rises while the unit has not reached its goal and resets when it gets the next one;
   ties by the requested priority (higher first), then the natural unit id. A unit parked
   at its goal, or with no route, never decides on its own: it only moves when pushed; a
-  parked unit pushed off its goal keeps it and drives back to it, its priority counted
-  from the push (it parked there: its leg was done).
+  parked unit pushed off its goal parks where it is pushed (its leg was done; the next
+  is the caller's to give), as ``planner.policy_standing`` moves parked units aside.
 - candidates: the node's successors over unblocked edges, and staying put, sorted by
   the least-weight distance [m] from the candidate to the unit's goal (ties: a node
   nobody else holds, as in the authors' implementations, then the next node of its
@@ -202,9 +202,9 @@ class Pibt:
         """Grant ``u`` the edge to ``m``, with a new route when ``m`` is off its route."""
         v = u.route[0]
         if self._standing(u):
-            if self._parked.get(v) == u.uid:  # pushed off its goal: it comes back to it
+            if self._parked.get(v) == u.uid:  # a parked unit parks where it is pushed
                 del self._parked[v]
-                u.since = tick.now
+                u.goal = m
             path = self._plan(m, u.goal) or [m]
             u.route = [v, *path]
         elif u.route[1] != m:
