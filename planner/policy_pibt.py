@@ -106,13 +106,13 @@ class Pibt:
                     first_block = first_block or (m, (r.wanted[m],))
                     continue
                 blockers = self.table.blockers(u.uid, v, m)
-                kinds = [self._blocker_kind(r, b) for b in blockers]
+                kinds = [self._blocker_kind(r, b, v, m) for b in blockers]
                 if HARD in kinds:
                     first_block = first_block or (m, blockers)
                     continue
                 r.wanted[m] = u.uid
                 before = self._pibt_claim(u, v, m, tick.now)
-                if not all(self._pushed(tick, r, b, u) for b in blockers):
+                if not all(self._pushed(tick, r, b, u, m) for b in blockers):
                     del r.wanted[m]
                     self.table.restore_claim(u.uid, before)
                     first_block = first_block or (m, blockers)
@@ -131,10 +131,10 @@ class Pibt:
         finally:
             r.chain.pop()
 
-    def _pushed(self, tick: _Tick, r: _Round, uid: str, parent: _Unit) -> bool:
-        """Make blocker ``uid`` of ``parent``'s candidate leave if it must (an earlier
+    def _pushed(self, tick: _Tick, r: _Round, uid: str, parent: _Unit, m: str) -> bool:
+        """Make blocker ``uid`` of ``parent``'s candidate ``m`` leave if it must (an earlier
         push may already have decided it): False if it will not leave."""
-        kind = self._blocker_kind(r, uid)
+        kind = self._blocker_kind(r, uid, parent.route[0], m)
         if kind == PUSH:
             return self._pibt(tick, r, self._units[uid], parent)
         return kind == MOVING
@@ -150,16 +150,23 @@ class Pibt:
             self.table.claim(u.uid, d["corridor"], d["heading"], now)
         return before
 
-    def _blocker_kind(self, r: _Round, uid: str) -> str:
-        """PUSH, MOVING or HARD (module docstring) for a unit in a candidate's way."""
+    def _blocker_kind(self, r: _Round, uid: str, v: str, m: str) -> str:
+        """PUSH, MOVING or HARD (module docstring) for a unit in the way of edge (v, m).
+        A unit driving (or about to drive) the edge's corridor the other way is coming
+        toward the asking unit, not leaving: HARD."""
         b = self._units[uid]
         if uid in r.chain or b.turn_back:
             return HARD
-        if b.edge is not None:
-            return MOVING
-        if uid in r.decided:
-            return MOVING if r.decided[uid] else HARD
-        return PUSH
+        if b.edge is None and uid not in r.decided:
+            return PUSH
+        if b.edge is None and not r.decided[uid]:
+            return HARD
+        claim = self.table.claim_of(uid)
+        d = self.graph.graph.edges[v, m]
+        if claim is not None and claim[:2] == (d["corridor"], -d["heading"]):
+            if self.table.holder(m) != uid:
+                return HARD
+        return MOVING
 
     def _pibt_candidates(self, u: _Unit, parent: _Unit | None) -> list[str]:
         """Where ``u`` may go, best first (module docstring); staying only for a root."""
