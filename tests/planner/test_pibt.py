@@ -15,9 +15,7 @@ def pibt(graph, **kw) -> LaneCoordinator:
 def reached(coord: LaneCoordinator, uid: str, goal: str) -> bool:
     """Did ``uid`` park at ``goal`` (a parked unit may be pushed on later, and parks
     where it is pushed)?"""
-    return any(
-        d.unit == uid and d.action == "arrived" and d.route == (goal,) for d in coord.log
-    )
+    return any(d.unit == uid and d.action == "arrived" and d.route == (goal,) for d in coord.log)
 
 
 def recoveries(coord: LaneCoordinator) -> list:
