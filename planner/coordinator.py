@@ -38,7 +38,10 @@ of its own, mixed into ``LaneCoordinator``:
 - ``planner.policy_standing``: moving standing units out of a waiting unit's way;
 - ``planner.policy_deadlocks``: finding and breaking wait-for cycles;
 - ``planner.policy_blocked_lanes``: turning back or rerouting off lanes the costmap
-  blocks.
+  blocks;
+- ``planner.policy_pibt``: with ``policy="pibt"``, units at nodes decide by priority
+  inheritance with backtracking (Okumura et al., AIJ 2022) instead of the greedy
+  grants above; the deadlock breaker stays as a safety net.
 
 Decisions. Every route, grant, wait, reroute, back-off and arrival is a ``Decision`` with
 its ``cause`` (a short code) and a sentence (``detail``), kept in ``log``: a replay can
@@ -58,9 +61,15 @@ from dataclasses import dataclass, field
 from planner.lane_graph import Lane, LaneGraph, SegmentQuerier, lane_key
 from planner.policy_blocked_lanes import BlockedLanes
 from planner.policy_deadlocks import Deadlocks
+from planner.policy_pibt import Pibt
 from planner.policy_reserve_ahead import Behind, ReserveAhead
 from planner.policy_standing import StandingUnits
 from planner.reservations import Reservation, ReservationTable, unit_order
+
+POLICIES = ("reserve_ahead", "pibt")
+"""Coordination policies: ``reserve_ahead`` (the default: a waiting unit is granted its
+next edge as soon as it is free, units in priority order, and deadlocks are broken when
+found) or ``pibt`` (``planner.policy_pibt``: priority inheritance with backtracking)."""
 
 ACTIONS = ("route", "grant", "wait", "reroute", "back_off", "arrived")
 """Decision actions: a new task's route, an edge granted, a wait, a changed route, a
@@ -150,6 +159,7 @@ class _Unit:
     wait_since: float = 0.0
     retry_at: float = -math.inf
     plan_version: int = -1
+    since: float = 0.0
     behind: list[Behind] = field(default_factory=list)
 
 
@@ -159,7 +169,7 @@ class _Tick:
     out: list[Decision] = field(default_factory=list)
 
 
-class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
+class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes, Pibt):
     """Grants lanes to units on ``graph`` (module docstring).
 
     client: what ``refresh`` reads the costmap through (``MapClient`` or anything with its
@@ -170,7 +180,8 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
     unit, or an unresolved deadlock, tries again to get out of it. reserve_ahead_m [m]:
     a unit this close to its edge's head is granted its next edge already, if it is free,
     so it drives on without stopping (0: only once it has arrived; see *Reserving
-    ahead* in the module docstring).
+    ahead* in the module docstring). policy: one of ``POLICIES``: how units at nodes are
+    granted their next edges.
 
     ``table`` is the reservation table; ``log`` every decision; ``deadlocks`` the number
     of wait-for cycles found.
@@ -186,7 +197,11 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
         arrive_tol: float = 0.1,
         retry_s: float = 1.0,
         reserve_ahead_m: float = 0.0,
+        policy: str = "reserve_ahead",
     ) -> None:
+        if policy not in POLICIES:
+            raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
+        self.policy = policy
         for name, value in (
             ("speed", speed),
             ("clear_m", clear_m),
@@ -218,6 +233,8 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
         self._xy = {n: graph.graph.nodes[n]["pos"] for n in graph.nodes}
         self._cycles: dict[tuple[str, ...], float] = {}  # unresolved cycle -> next attempt
         self._now = -math.inf
+        self._intents: dict[str, str] = {}  # pibt: node -> the waiting unit claiming it
+        self._dist_cache: dict[str, tuple[int, dict[str, float]]] = {}  # pibt: goal -> ...
 
     # ------------------------------------------------------------------ queries
 
@@ -310,6 +327,7 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
             if self._parked.get(u.route[0]) == unit_id:
                 del self._parked[u.route[0]]
             u.priority, u.goal = float(priority), goal_node
+        u.since = tick.now
         u.waiting = ()
         if not u.turn_back:  # a unit turning back plans when it turns
             path = self._plan(start_node, goal_node)
@@ -346,6 +364,13 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
             if u.edge is not None and u.pos is not None:
                 self._progress(tick, u)
         ready = [u for u in self._sorted if (u.edge is None and len(u.route) > 1) or u.turn_back]
+        if self.policy == "pibt":
+            for u in ready:
+                if u.turn_back:
+                    self._turn_back(tick, u)
+            self._pibt_round(tick, [u for u in ready if not u.turn_back])
+            self._break_deadlocks(tick)
+            return self._end(tick)
         ready.sort(key=lambda u: (-u.priority, u.wait_since if u.waiting else tick.now, u.order))
         for u in ready:
             if u.turn_back:
@@ -420,6 +445,14 @@ class LaneCoordinator(ReserveAhead, StandingUnits, Deadlocks, BlockedLanes):
         edge and, if its head is a crossing the unit only passes through, of the edge out
         of it too (do not block the box: never stop inside a crossing)."""
         found = self.table.blockers(uid, route[0], route[1])
+        claimant = self._intents.get(route[1])
+        if (
+            claimant is not None
+            and claimant != uid
+            and claimant not in found
+            and self._units[claimant].edge is None
+        ):
+            found = (*found, claimant)  # pibt: a waiting unit claimed it
         if not found and len(route) > 2 and route[1] in self._crossings:
             found = self.table.blockers(uid, route[1], route[2])
         return found

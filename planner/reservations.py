@@ -99,6 +99,14 @@ class ReservationTable:
                 found.add(hold.unit)
         return tuple(sorted(found, key=unit_order))
 
+    def claim_of(self, unit: str) -> tuple[int, int, float] | None:
+        """``unit``'s corridor claim: (corridor, heading, since [s]), or None."""
+        return self._claim_of.get(unit)
+
+    def claimants(self, corridor: int, heading: int) -> set[str]:
+        """The units claiming ``corridor`` along ``heading`` (+1 / -1)."""
+        return set(self._claims.get(corridor, {}).get(heading, ()))
+
     def snapshot(self) -> list[Reservation]:
         """Every open window: nodes by id, lanes by key, corridor claims by corridor."""
         ends = self.graph.corridors
@@ -178,6 +186,13 @@ class ReservationTable:
         else:
             d, heading = edges[head, tail], edges[head, tail]["heading"]
         self.claim(unit, d["corridor"], heading, now)
+
+    def restore_claim(self, unit: str, claim: tuple[int, int, float] | None) -> None:
+        """Put back a claim ``claim_of(unit)`` returned (None: no claim)."""
+        self.unclaim(unit)
+        if claim is not None:
+            corridor, heading, since = claim
+            self.claim(unit, corridor, heading, since)
 
     def unclaim(self, unit: str) -> None:
         """``unit`` no longer drives a corridor."""

@@ -180,7 +180,7 @@ class Episode:
         self.sim = FleetSim(world, units, seed=setup.seed, poster=self.poster)
         self.graph = graph = setup.build_lane_graph(segment_m=opts.segment_m)
         lanes = CostmapSegments(self) if opts.lanes_from == "costmap" else self.client
-        self.coordinator = coordinator = _coordinator(graph, lanes, units, opts)
+        self.coordinator = coordinator = _coordinator(graph, lanes, units, opts, setup.coordination)
         planner = GridPlanner(self.geometry)
         reroute = _rerouter(coordinator, graph)
         self.agents = {
@@ -411,15 +411,16 @@ def _xy(pose) -> tuple[float, float]:
 
 
 def _coordinator(
-    graph: LaneGraph, client: SegmentQuerier, units, opts: RunOptions
+    graph: LaneGraph, client: SegmentQuerier, units, opts: RunOptions, policy: str
 ) -> LaneCoordinator:
-    """The run's lane coordinator: a node is left once a unit's body is clear of it, and
-    with ``opts.reserve_ahead`` units ask for their next lanes a braking distance (plus
-    ``RESERVE_MARGIN_M``) before the end of what they hold."""
+    """The run's lane coordinator under ``policy`` (the scenario's ``coordination``): a
+    node is left once a unit's body is clear of it, and with ``opts.reserve_ahead`` units
+    ask for their next lanes a braking distance (plus ``RESERVE_MARGIN_M``) before the
+    end of what they hold."""
     clear_m = 2.0 * max(spec.drive.radius for spec in units) + 0.2
     braking_m = max(spec.drive.max_speed**2 / (2 * spec.drive.max_accel) for spec in units)
     ahead_m = braking_m + RESERVE_MARGIN_M if opts.reserve_ahead else 0.0
-    return LaneCoordinator(graph, client, clear_m=clear_m, reserve_ahead_m=ahead_m)
+    return LaneCoordinator(graph, client, clear_m=clear_m, reserve_ahead_m=ahead_m, policy=policy)
 
 
 def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:

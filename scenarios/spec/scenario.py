@@ -47,6 +47,7 @@ from mapserver.service.settings import Settings
 from mapserver.service.validation import Section, domain_section, number, text
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
+from scenarios.spec.coordination import DEFAULT_COORDINATION, CoordinationFields
 from scenarios.spec.events import (
     BreakdownEvent,
     DropEvent,
@@ -155,6 +156,7 @@ class Scenario:
     tasks: TaskSpec = field(default_factory=TaskSpec)
     events: tuple[Event, ...] = ()
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
+    coordination: str = DEFAULT_COORDINATION
     source: str = ""
 
     @property
@@ -269,6 +271,7 @@ class ScenarioFile(Section):
     map_server: MapServerFields = MapServerFields()
     events: list[EventFields] | None = None
     recovery: RecoveryFields = RecoveryFields()
+    coordination: CoordinationFields = CoordinationFields()
 
 
 TOP_KEYS = tuple(ScenarioFile.model_fields)
@@ -354,6 +357,7 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
         tasks=tasks,
         events=events,
         recovery=top.recovery.build(),
+        coordination=top.coordination.policy,
         source=doc.source,
     )
 

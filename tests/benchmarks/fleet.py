@@ -1,26 +1,33 @@
 """Fleet throughput benchmark: whole scenario runs, edge-by-edge lanes against reserve-ahead.
 
-Run: ``python tests/benchmarks/fleet.py [SCENARIO.yaml ...] [--all] [--policy P]
+Run: ``python tests/benchmarks/fleet.py [SCENARIO.yaml ...] [--all] [--floors] [--policy P]
 [--seed N] [--duration S] [--coordinator NAME] [--json]``
 
 Each scenario (default: ``scenarios/static_shift.yaml``, ``scenarios/moved_pod.yaml``,
-``scenarios/busy_shift.yaml``; ``--all``: every ``scenarios/*.yaml`` but ``tiny.yaml``)
-is run end to end twice in this process with ``scenarios.run.runner.run`` (its own embedded
-map server each time, the scenario's seed), once per lane coordinator:
+``scenarios/busy_shift.yaml``; ``--all``: every ``scenarios/*.yaml`` but ``tiny.yaml``;
+``--floors``: also the two-way floors of ``tests/benchmarks/floors/``) is run end to end
+in this process with ``scenarios.run.runner.run`` (its own embedded map server each
+time, the scenario's seed), once per lane coordinator:
 
 - ``edge-by-edge``: ``RunOptions(segment_m=None, reserve_ahead=False)``, the coordinator
   as it was: lanes run junction to junction (stops included) and a unit is granted one
   lane at a time, when it arrives at the lane's tail;
 - ``reserve-ahead``: ``RunOptions()`` (the defaults): lanes split every 4 m so units can
   follow one another, and a unit asks for its next lanes a braking distance (plus
-  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.run.runner._coordinator``).
+  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.run.runner._coordinator``);
+- ``pibt``: as ``reserve-ahead``, with the scenario's ``coordination.policy`` set to
+  ``pibt`` (``planner.policy_pibt``: priority inheritance with backtracking).
 
 Only the coordinator differs: both runs use the same drive controller (regulated pure
 pursuit), the same navigator (A* on the shared costmap, line-of-sight shortcuts,
 recovery), the same map server settings and the same trips. ``--policy``, ``--seed`` and
 ``--duration`` [s] override the scenario's map policy, run seed and length.
 
-Printed, one row per (scenario, coordinator): ``trips`` (``tasks_completed``),
+Printed, one row per (scenario, coordinator): ``trips`` (``tasks_completed``), ``bound``
+(the congestion-free bound on trips: the trips released within the run, capped by
+``units x sim_seconds / ideal_trip_s``, the trips each unit could drive back to back
+alone at the run's mean ideal trip time), ``of bnd`` (trips / bound), ``dl/10uh``
+(deadlocks broken per 10 unit-hours),
 ``trips/u.h`` (``trips_per_unit_hour``), ``ratio`` (``trip_time_ratio``: actual / ideal
 trip time), ``eff`` (``fleet_efficiency``), ``v_mov`` (``mean_speed_moving`` [m/s]),
 ``moving`` (``moving_share``), ``dl`` (deadlocks broken), ``coll`` (collisions), sim
@@ -59,9 +66,11 @@ from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
 ROOT = HERE.parents[1]
 DEFAULT = ("static_shift.yaml", "moved_pod.yaml", "busy_shift.yaml")
-COORDINATORS = {
-    "edge-by-edge": RunOptions(segment_m=None, reserve_ahead=False),
-    "reserve-ahead": RunOptions(),
+FLOORS = HERE / "floors"
+COORDINATORS = {  # name -> (run options, the scenario's coordination policy)
+    "edge-by-edge": (RunOptions(segment_m=None, reserve_ahead=False), "reserve_ahead"),
+    "reserve-ahead": (RunOptions(), "reserve_ahead"),
+    "pibt": (RunOptions(), "pibt"),
 }
 STILL_M = 0.05  # [m] a unit that stays this close to where it stood has not moved
 
@@ -126,6 +135,8 @@ def row(scenario: Scenario, coordinator: str, record: RunRecord, total_wall: flo
     for b in scenario.breakdowns():
         broken.setdefault(b.unit_id, []).append((b.at, b.until))
     sim_s, wall_s = float(m["sim_seconds"]), float(m["wall_seconds"])
+    bound = trip_bound(scenario, m["units"], sim_s, m["ideal_trip_s"])
+    unit_hours = m["units"] * sim_s / 3600.0
     return {
         "scenario": scenario.name,
         "coordinator": coordinator,
@@ -133,6 +144,11 @@ def row(scenario: Scenario, coordinator: str, record: RunRecord, total_wall: flo
         "seed": m["seed"],
         "units": m["units"],
         "trips": m["tasks_completed"],
+        "trip_bound": round(bound, 2) if bound is not None else None,
+        "trips_of_bound": round(m["tasks_completed"] / bound, 3) if bound else None,
+        "deadlocks_per_10_unit_hours": round(10 * m["deadlocks"] / unit_hours, 2)
+        if unit_hours
+        else None,
         "trips_per_unit_hour": m["trips_per_unit_hour"],
         "trip_time_ratio": m["trip_time_ratio"],
         "fleet_efficiency": m["fleet_efficiency"],
@@ -149,16 +165,30 @@ def row(scenario: Scenario, coordinator: str, record: RunRecord, total_wall: flo
     }
 
 
+def trip_bound(
+    scenario: Scenario, units: int, sim_s: float, ideal_trip_s: float | None
+) -> float | None:
+    """The congestion-free bound on trips (module docstring); None without a completed
+    trip to take the ideal trip time from."""
+    released = sum(1 for t in scenario.task_stream() if t.release < sim_s)
+    if not ideal_trip_s:
+        return None
+    return min(float(released), units * sim_s / ideal_trip_s)
+
+
 COLUMNS = (  # (title, key, format)
     ("scenario", "scenario", "<14"),
     ("coordinator", "coordinator", "<13"),
     ("trips", "trips", ">5"),
+    ("bound", "trip_bound", ">6.1f"),
+    ("of bnd", "trips_of_bound", ">6.2f"),
     ("trips/u.h", "trips_per_unit_hour", ">9.2f"),
     ("ratio", "trip_time_ratio", ">6.2f"),
     ("eff", "fleet_efficiency", ">6.3f"),
     ("v_mov", "mean_speed_moving", ">6.3f"),
     ("moving", "moving_share", ">6.3f"),
     ("dl", "deadlocks", ">3"),
+    ("dl/10uh", "deadlocks_per_10_unit_hours", ">7.1f"),
     ("coll", "collisions", ">4"),
     ("sim s", "sim_seconds", ">6.0f"),
     ("wall s", "wall_seconds", ">7.1f"),
@@ -191,12 +221,14 @@ def line(r: dict) -> str:
     return "  ".join(cell(r, key, fmt) for _, key, fmt in COLUMNS).rstrip()
 
 
-def scenario_paths(given: list[str], everything: bool) -> list[Path]:
+def scenario_paths(given: list[str], everything: bool, floors: bool = False) -> list[Path]:
     """The scenario files to run, in order, without repeats."""
     paths = [Path(p) for p in given]
     if everything:
         paths += [p for p in sorted((ROOT / "scenarios").glob("*.yaml")) if p.name != "tiny.yaml"]
-    if not paths:
+    if floors:
+        paths += sorted(FLOORS.glob("*.yaml"))
+    if not paths and not floors:
         paths = [ROOT / "scenarios" / name for name in DEFAULT]
     seen: set[Path] = set()
     out = []
@@ -213,6 +245,9 @@ def main() -> None:
     parser.add_argument(
         "--all", action="store_true", help="every scenarios/*.yaml except tiny.yaml"
     )
+    parser.add_argument(
+        "--floors", action="store_true", help="also the two-way floors of tests/benchmarks/floors"
+    )
     parser.add_argument("--policy", help="map policy for every run (decay, binary, sticky)")
     parser.add_argument("--seed", type=int, help="run seed for every run")
     parser.add_argument("--duration", type=float, help="cut every run to this many sim [s]")
@@ -220,7 +255,7 @@ def main() -> None:
         "--coordinator",
         choices=sorted(COORDINATORS),
         action="append",
-        help="run only this coordinator (repeatable; default: both)",
+        help="run only this coordinator (repeatable; default: all)",
     )
     parser.add_argument("--json", action="store_true", help="print every row as a JSON line")
     args = parser.parse_args()
@@ -228,7 +263,7 @@ def main() -> None:
     coordinators = [c for c in COORDINATORS if c in (args.coordinator or COORDINATORS)]
     print(header(), flush=True)
     rows = []
-    for path in scenario_paths(args.scenarios, args.all):
+    for path in scenario_paths(args.scenarios, args.all, args.floors):
         scenario = load_scenario(path)
         if args.policy is not None:
             scenario = scenario.with_policy(args.policy)
@@ -237,8 +272,9 @@ def main() -> None:
         if args.duration is not None:
             scenario = dataclasses.replace(scenario, duration=args.duration)
         for name in coordinators:
+            options, policy = COORDINATORS[name]
             t0 = time.perf_counter()
-            record = run(scenario, options=COORDINATORS[name])
+            record = run(dataclasses.replace(scenario, coordination=policy), options=options)
             rows.append(row(scenario, name, record, time.perf_counter() - t0))
             print(line(rows[-1]), flush=True)
     if args.json:

@@ -290,13 +290,13 @@ def scenarios(draw):
     return nx_, ny_, segment_m, one_way, units, sorted(events, key=lambda e: e[0])
 
 
-def play(scenario, reserve_ahead_m=0.0):
+def play(scenario, reserve_ahead_m=0.0, policy="reserve_ahead"):
     """Drive a scenario, checking the invariants after every tick, refresh and request;
     until a lane is first blocked, also that no corridor is driven both ways at once."""
     nx_, ny_, segment_m, one_way, units, events = scenario
     graph = warehouse_graph(nx_, ny_, segment_m, one_way)
     fake = FakeMap()
-    coord = LaneCoordinator(graph, fake, reserve_ahead_m=reserve_ahead_m)
+    coord = LaneCoordinator(graph, fake, reserve_ahead_m=reserve_ahead_m, policy=policy)
     drive = Drive(coord)
     for uid, start, goal, priority in units:
         drive.add(uid, start, goal, priority)
@@ -338,17 +338,21 @@ def check_corridors_one_way(coord):
     assert all(len(ends) == 1 for ends in headings.values()), headings
 
 
-@pytest.mark.parametrize("reserve_ahead_m", [0.0, 2.0])
+POLICY_CASES = [(0.0, "reserve_ahead"), (2.0, "reserve_ahead"), (0.0, "pibt"), (2.0, "pibt")]
+
+
+@pytest.mark.parametrize(("reserve_ahead_m", "policy"), POLICY_CASES)
 @given(scenario=scenarios())
-def test_the_coordinator_never_grants_conflicting_lanes(scenario, reserve_ahead_m):
-    coord = play(scenario, reserve_ahead_m)
+def test_the_coordinator_never_grants_conflicting_lanes(scenario, reserve_ahead_m, policy):
+    coord = play(scenario, reserve_ahead_m, policy)
     assert all(d.action in ACTIONS for d in coord.log)
 
 
-@pytest.mark.parametrize("reserve_ahead_m", [0.0, 2.0])
+@pytest.mark.parametrize(("reserve_ahead_m", "policy"), POLICY_CASES)
 @given(scenario=scenarios())
-def test_the_same_inputs_give_the_same_decisions(scenario, reserve_ahead_m):
-    assert play(scenario, reserve_ahead_m).log == play(scenario, reserve_ahead_m).log
+def test_the_same_inputs_give_the_same_decisions(scenario, reserve_ahead_m, policy):
+    first = play(scenario, reserve_ahead_m, policy).log
+    assert first == play(scenario, reserve_ahead_m, policy).log
 
 
 # ---------------------------------------------------------------- interface

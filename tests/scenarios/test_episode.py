@@ -30,10 +30,14 @@ class Count:
         self.finished = True
 
 
-def trace(tmp_path, name: str, seed: int, count: Count | None = None) -> list[tuple]:
+def trace(
+    tmp_path, name: str, seed: int, count: Count | None = None, coordination: str | None = None
+) -> list[tuple]:
     """(stamp, unit poses, paths sent, coordinator decisions so far, the scans' ranges)
-    after every step."""
+    after every step; ``coordination``: the scenario's ``coordination.policy``."""
     noisy = {"units.lidar.range_noise": 0.02}  # so the seed shows in the scans
+    if coordination is not None:
+        noisy["coordination.policy"] = coordination
     scenario = replace(load_scenario("scenarios/tiny.yaml", noisy), duration=STEPS * 0.1)
     with EmbeddedServer(tmp_path / name, scenario.server_overrides()) as server:
         with httpx.Client(base_url=server.url, timeout=60) as http:
@@ -63,6 +67,15 @@ def test_two_episodes_with_one_seed_are_identical_step_for_step(tmp_path):
         assert a == b
     other = trace(tmp_path, "c", seed=4)  # and the seed matters (LiDAR noise)
     assert [s[4] for s in other] != [s[4] for s in first]
+
+
+def test_two_pibt_episodes_with_one_seed_are_identical_step_for_step(tmp_path):
+    first = trace(tmp_path, "a", seed=3, coordination="pibt")
+    second = trace(tmp_path, "b", seed=3, coordination="pibt")
+    assert len(first) == STEPS
+    for a, b in zip(first, second, strict=True):
+        assert a == b
+    assert first[-1][3] > 0  # the coordinator decided something
 
 
 def test_observers_run_on_their_own_clock_and_finish_once(tmp_path):
