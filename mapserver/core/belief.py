@@ -263,9 +263,7 @@ class BeliefGrid:
     def occupied_half_life(self) -> float:
         """[s] the fade half life of evidence above the prior: ``decay``'s, or under
         ``dual`` a transient's (``SensorModel.transient_half_life``)."""
-        if self.fades_selectively:
-            return self.sensor_model.transient_half_life
-        return self.decay.half_life_occupied
+        return self._kernel_model.half_life_occupied  # kernel.occupied_half_life
 
     def history(self) -> np.ndarray:
         """The flat history array (``dual``: one byte per cell; one unused byte else)."""

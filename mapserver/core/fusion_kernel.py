@@ -72,7 +72,6 @@ class KernelModel(NamedTuple):
     confirm_hits: int
     confirm_after: float
     confirm_within: float
-    transient_half_life: float
 
 
 def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> KernelModel:
@@ -80,15 +79,28 @@ def kernel_model(model: SensorModel, decay: DecayParams, policy: Policy) -> Kern
     ``KernelModel`` field read by its name from the sensor model (its field or property)
     or else from the decay parameters, ``policy`` as its code (``POLICY_CODES``), each
     typed as the record declares it (an int clamp would be a new signature to compile).
-    A new rule adds its field to ``KernelModel`` and to the model, nothing here."""
+    Two fields depend on the policy: ``policy`` and ``half_life_occupied``
+    (``occupied_half_life``). A new rule adds its field to ``KernelModel`` and to the
+    model, nothing here."""
     types = get_type_hints(KernelModel)  # float or int per field
+    by_policy = {
+        "policy": POLICY_CODES[policy],
+        "half_life_occupied": occupied_half_life(model, decay, policy),
+    }
     values = {
-        name: POLICY_CODES[policy]
-        if name == "policy"
+        name: by_policy[name]
+        if name in by_policy
         else getattr(model if hasattr(model, name) else decay, name)
         for name in KernelModel._fields
     }
     return KernelModel(**{name: types[name](v) for name, v in values.items()})
+
+
+def occupied_half_life(model: SensorModel, decay: DecayParams, policy: Policy) -> float:
+    """[s] the fade half life of evidence above the prior: ``decay``'s, or under ``dual``
+    a transient's (``SensorModel.transient_half_life``; only new cells and void cells'
+    hits fade there, ``fades_by_history``)."""
+    return model.transient_half_life if policy is Policy.DUAL else decay.half_life_occupied
 
 
 class KernelBuffers(NamedTuple):
@@ -334,8 +346,11 @@ def _cells_to(t, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1):
 
 
 GLANCE_CAP_CELLS = 10.0
-SURFACE_UNKNOWN = -1.0  # ``glance_cutoff``'s answer where no surface is outlined
 """[cells] the most a return's clearing is cut short by ``glance_cutoff``."""
+
+SURFACE_UNKNOWN = -1.0
+"""``glance_cutoff``'s answer where no surface is outlined (``mark_scan`` then marks
+nothing ``MARK_CLEAR`` within the cap of the endpoint)."""
 
 
 GLANCE_MAX_BEND = math.cos(math.radians(20.0))
@@ -531,11 +546,10 @@ def apply_marks(buffers, box, grid, scan, model):
     l_hit, l_miss, l0 = model.l_hit, model.l_miss, model.l0
     l_miss_no_return = model.l_miss_no_return
     clamp_min, clamp_max, policy = model.clamp_min, model.clamp_max, model.policy
+    # Under dual, half_life_occupied is a transient's (``occupied_half_life``); here only
+    # new cells fade (a void cell's update overwrites what it held: ``fades_by_history``).
+    half_life_occupied, half_life_free = model.half_life_occupied, model.half_life_free
     dual = policy == POLICY_DUAL
-    # Under dual a transient's hits fade with a half life of their own; here only new
-    # cells fade (a void cell's update overwrites what it held: ``fades_by_history``).
-    half_life_occupied = model.transient_half_life if dual else model.half_life_occupied
-    half_life_free = model.half_life_free
     res2 = resolution * resolution
     weighted = pose_var_xy > 0.0 or pose_var_yaw > 0.0
     # Cells last observed by the same earlier scan share their stamp: cache fade factors.
@@ -659,8 +673,8 @@ def faded_log_odds(
 
     Works on flat arrays of any window; never-observed cells (t NaN) are copied as is.
     selective (``POLICY_DUAL``): only the cells whose ``history`` (flat, as the window)
-    says fade (``fades_by_history``); the others are copied as is. The caller passes
-    dual's ``transient_half_life`` as ``half_life_occupied``.
+    says fade (``fades_by_history``); the others are copied as is. ``half_life_occupied``
+    is the policy's (``occupied_half_life``).
     """
     fade_cache[:, 0] = math.nan
     stamp_bits = last_observed.view(np.int64)

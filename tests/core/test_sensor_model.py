@@ -146,14 +146,14 @@ def test_the_kernel_model_holds_each_value_by_name():
         "clamp_min": -4.0,
         "clamp_max": 6.0,
         "policy": fusion_kernel.POLICY_DUAL,
-        "half_life_occupied": 20.0,
+        "half_life_occupied": 4.0,  # under dual, the transient half life
         "half_life_free": 90.0,
         "l_void": model.l_void,
         "confirm_hits": 7,
         "confirm_after": 3.0,
         "confirm_within": 12.0,
-        "transient_half_life": 4.0,
     }
+    assert fusion_kernel.kernel_model(model, decay, Policy.DECAY).half_life_occupied == 20.0
     # Typed as the kernels are compiled for (an int would be another signature).
     assert [type(v) for v in record] == [
         int if name in ("policy", "confirm_hits") else float for name in record._fields
