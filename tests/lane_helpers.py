@@ -25,6 +25,19 @@ def grid_graph(nx_: int, ny_: int, one_way=(), spacing: float = SPACING, **kw) -
     return LaneGraph(pos, lanes, one_way, **kw)
 
 
+def pocket_graph() -> LaneGraph:
+    """A corridor a - b - c (3 m lanes) with a pocket p off its middle node b::
+
+    a - b - c
+        |
+        p
+    """
+    return LaneGraph(
+        {"a": (0.0, 0.0), "b": (3.0, 0.0), "c": (6.0, 0.0), "p": (3.0, -3.0)},
+        [("a", "b"), ("b", "c"), ("b", "p")],
+    )
+
+
 def warehouse_graph(nx_: int, ny_: int, segment_m: float | None = None, one_way=()) -> LaneGraph:
     """``LaneGraph.from_warehouse`` of an empty floor with lane lines every SPACING [m]."""
     xs = tuple(SPACING * (i + 1) for i in range(nx_))

@@ -27,7 +27,7 @@ from typing import Annotated, Any
 
 from pydantic import Discriminator, Field
 
-from mapserver.core.sensor_model import DEFAULT_POLICY
+from mapserver.core.sensor_model import DEFAULT_POLICY, Policy
 from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from scenarios.spec.scenario import load_scenario
 from scenarios.spec.server import PolicyName
@@ -35,7 +35,7 @@ from scenarios.spec.yaml_lines import Document, ScenarioError, parse_yaml
 
 __all__ = ["ScenarioError", "Sweep", "SweepRun", "expand", "load_sweep", "parse_sweep"]
 
-DEFAULT_POLICIES = (DEFAULT_POLICY.value, "decay", "binary", "sticky")
+DEFAULT_POLICIES = (DEFAULT_POLICY.value, *(p.value for p in Policy if p is not DEFAULT_POLICY))
 """The policies a sweep or a compare runs unless told: the default and the three
 baselines the README's tables measure."""
 MAX_RUNS = 100_000

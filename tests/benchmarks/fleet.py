@@ -248,7 +248,10 @@ def main() -> None:
     parser.add_argument(
         "--floors", action="store_true", help="also the two-way floors of tests/benchmarks/floors"
     )
-    parser.add_argument("--policy", help="map policy for every run (decay, binary, sticky)")
+    parser.add_argument(
+        "--policy",
+        help="map policy for every run (dual, decay, binary, sticky; default: each file's)",
+    )
     parser.add_argument("--seed", type=int, help="run seed for every run")
     parser.add_argument("--duration", type=float, help="cut every run to this many sim [s]")
     parser.add_argument(

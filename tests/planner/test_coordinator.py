@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from lane_helpers import Drive, FakeMap, grid_graph, warehouse_graph
+from lane_helpers import Drive, FakeMap, grid_graph, pocket_graph, warehouse_graph
 
 from fleet.boxworld import BoxWorld, Warehouse
 from planner.coordinator import ACTIONS, LaneCoordinator
@@ -51,14 +51,10 @@ def test_the_lower_priority_unit_gives_way():
 
 
 def test_a_swap_in_a_corridor_with_a_pocket_backs_off_into_it():
-    #   a - b - c       u1: a -> c, u2: c -> a. Neither may stop in the crossing b while
-    #       |           its way out is held, so they deadlock; u2 (the larger id) backs
-    #       p           off through b into the pocket p and lets u1 pass.
-    g = LaneGraph(
-        {"a": (0.0, 0.0), "b": (3.0, 0.0), "c": (6.0, 0.0), "p": (3.0, -3.0)},
-        [("a", "b"), ("b", "c"), ("b", "p")],
-    )
-    coord = LaneCoordinator(g)
+    # u1: a -> c, u2: c -> a. Neither may stop in the crossing b while its way out is
+    # held, so they deadlock; u2 (the larger id) backs off through b into the pocket p
+    # and lets u1 pass.
+    coord = LaneCoordinator(pocket_graph())
     drive = Drive(coord)
     drive.add("u1", "a", "c")
     drive.add("u2", "c", "a")

@@ -2,10 +2,9 @@
 crossing or standing in a ring all get through, without the deadlock breaker."""
 
 import pytest
-from lane_helpers import Drive, grid_graph, warehouse_graph
+from lane_helpers import Drive, grid_graph, pocket_graph, warehouse_graph
 
 from planner.coordinator import POLICIES, LaneCoordinator
-from planner.lane_graph import LaneGraph
 
 
 def pibt(graph, **kw) -> LaneCoordinator:
@@ -64,14 +63,9 @@ def test_a_swap_on_a_lane_resolves_by_inheritance_without_a_recovery():
 
 
 def test_a_parked_unit_in_the_way_is_pushed_aside_and_parks_there():
-    #   a - b - c       u1 is parked at b, on the only way from a to c: pushed aside into
-    #       |           the pocket p (off u2's route), where it parks.
-    #       p
-    g = LaneGraph(
-        {"a": (0.0, 0.0), "b": (3.0, 0.0), "c": (6.0, 0.0), "p": (3.0, -3.0)},
-        [("a", "b"), ("b", "c"), ("b", "p")],
-    )
-    coord = pibt(g)
+    # u1 is parked at b, on the only way from a to c: pushed aside into the pocket p
+    # (off u2's route), where it parks.
+    coord = pibt(pocket_graph())
     drive = Drive(coord)
     drive.add("u1", "b", "b")
     drive.add("u2", "a", "c")
