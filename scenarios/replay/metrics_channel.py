@@ -25,12 +25,11 @@ of ``metrics.json`` for the keys both have.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import fields
 from typing import Any, Final
 
 from scenarios.replay.foxglove_messages import foxglove_time, stamp_ns
 from scenarios.replay.foxglove_schemas import TIME
-from scenarios.run.record import CountersSample, FreezeRecord
+from scenarios.run.record import COUNTERS, CountersSample, FreezeRecord
 from scenarios.score.counts import freeze_counts
 from scenarios.score.metric_registry import Metric, MetricError, View, shown_in
 
@@ -39,7 +38,7 @@ METRICS_SCHEMA: Final = "fleetmap.RunMetrics"
 
 VERDICTS: Final = freeze_counts.feeds
 """The fields known once the run is scored (the keys ``freeze_counts`` feeds)."""
-SAMPLED: Final = tuple(f.name for f in fields(CountersSample) if f.name != "stamp")
+SAMPLED: Final = COUNTERS
 """The fields a counters sample holds."""
 
 
