@@ -171,21 +171,22 @@ class Metric:
         unit = self.unit.symbol
         return self.title if unit in (COUNT.symbol, LABEL.symbol) else f"{self.title} [{unit}]"
 
-    def stored(self, metrics: Mapping[str, Any]) -> Any:
-        """Its value as one run's ``metrics`` hold it (None when absent)."""
-        value: Any = metrics
-        for part in self.key.split("."):
-            value = value.get(part) if isinstance(value, Mapping) else None
-        return value
-
-    def present(self, metrics: Mapping[str, Any]) -> bool:
-        """Whether one run's ``metrics`` hold it (null counts as held)."""
+    def _lookup(self, metrics: Mapping[str, Any]) -> tuple[bool, Any]:
+        """(whether one run's ``metrics`` hold it, its value there or None)."""
         value: Any = metrics
         for part in self.key.split("."):
             if not isinstance(value, Mapping) or part not in value:
-                return False
+                return False, None
             value = value[part]
-        return True
+        return True, value
+
+    def stored(self, metrics: Mapping[str, Any]) -> Any:
+        """Its value as one run's ``metrics`` hold it (None when absent)."""
+        return self._lookup(metrics)[1]
+
+    def present(self, metrics: Mapping[str, Any]) -> bool:
+        """Whether one run's ``metrics`` hold it (null counts as held)."""
+        return self._lookup(metrics)[0]
 
     def number(self, metrics: Mapping[str, Any]) -> float | None:
         """One run's number (``read``); None when absent, null or not a number."""

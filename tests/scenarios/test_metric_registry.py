@@ -13,6 +13,8 @@ import typing
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from mapserver.core.geometry import GridGeometry
 from scenarios.cli.run import format_table
@@ -40,7 +42,7 @@ from scenarios.score.throughput import ThroughputTracker
 from scenarios.sweep.compare_table import scenario_table
 from scenarios.sweep.parallel import RunResult
 from scenarios.sweep.pareto import pareto_settings, settings_of
-from scenarios.sweep.results import write_csv
+from scenarios.sweep.results import cell_text, write_csv
 from scenarios.sweep.sweep_file import Sweep, SweepRun
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -239,6 +241,11 @@ def test_compare_csv_writes_lists_as_json_and_columns_in_registry_order(tmp_path
     known = [r for r in roots if r in REGISTRY.json_keys()]
     assert known == sorted(known, key=REGISTRY.json_keys().index)
     assert roots[-1] == "zzz_old_key" and "wait_s.traffic" in header
+
+
+@given(st.lists(st.none() | st.integers() | st.floats(allow_nan=False, allow_infinity=False)))
+def test_a_list_cell_reads_back_as_the_list(values: list) -> None:
+    assert json.loads(cell_text(values)) == values
 
 
 # ---------------------------------------------------------------------------- the docs
