@@ -11,25 +11,10 @@ from pathlib import Path
 
 from mapserver.core.errors import FleetmapError
 from mapserver.core.sensor_model import Policy
+from scenarios.score.metric_registry import View, shown_in
 
 METRICS_FILE = "metrics.json"
-TABLE_COLUMNS = (
-    ("policy", "policy"),
-    ("phantom_freezes", "phantom freezes"),
-    ("phantom_freeze_seconds", "phantom s"),
-    ("true_block_freezes", "true blocks"),
-    ("true_block_seconds", "true block s"),
-    ("stale_free_plans", "stale-free plans"),
-    ("inscribed_plans", "inscribed plans"),
-    ("collisions", "collisions"),
-    ("time_to_clear_s", "time to clear s"),
-    ("tasks_completed", "tasks"),
-    ("trips_per_unit_hour", "trips/unit-h"),
-    ("trip_time_ratio", "actual/ideal"),
-    ("fleet_efficiency", "efficiency"),
-)
 FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port (scenarios.replay.live)
-TWO_DECIMALS = ("trip_time_ratio", "fleet_efficiency")  # ratios near 1: one decimal is too coarse
 
 
 def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
@@ -120,23 +105,25 @@ def _say(text: str) -> None:
 
 
 def format_table(rows: list[dict]) -> str:
-    """A plain-text table of the comparison columns."""
-    cells = [[title for _, title in TABLE_COLUMNS]]
+    """A plain-text table of the metric registry's ``fleetmap run`` columns."""
+    columns = shown_in(View.RUN_TABLE)
+    cells = [[m.header for m in columns]]
     for row in rows:
-        cells.append([_cell(row.get(key), key in TWO_DECIMALS) for key, _ in TABLE_COLUMNS])
-    widths = [max(len(r[i]) for r in cells) for i in range(len(TABLE_COLUMNS))]
+        cells.append([_cell(m.stored(row), m.fixed) for m in columns])
+    widths = [max(len(r[i]) for r in cells) for i in range(len(columns))]
     lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in cells]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)
 
 
-def _cell(value: object, fine: bool = False) -> str:
+def _cell(value: object, fixed) -> str:
+    """``value`` in the table, floats written by ``fixed`` (the metric's decimals)."""
     if isinstance(value, float):
-        return f"{value:.2f}" if fine else f"{value:.1f}"
+        return fixed(value)
     if value is None:
         return "-"
     if isinstance(value, list):
-        return ",".join("never" if v is None else f"{v:.1f}" for v in value) or "-"
+        return ",".join("never" if v is None else fixed(v) for v in value) or "-"
     return str(value)
 
 

@@ -55,6 +55,7 @@ from scenarios.score.counts import freeze_counts, plan_counts
 from scenarios.score.evidence import freeze_records
 from scenarios.score.incidents import collision_counts
 from scenarios.score.map_truth import summary as map_truth_summary
+from scenarios.score.metric_registry import check_run_metrics
 from scenarios.score.truth_timeline import truth_timeline
 from scenarios.spec.scenario import Scenario
 from scenarios.spec.tasks import Task
@@ -366,13 +367,15 @@ class Episode:
         return self.record
 
     def _metrics(self, wall_seconds: float) -> dict[str, object]:
+        """``metrics.json``: the run's own keys and the scorers' (each declares the keys it
+        feeds); MetricError when they differ from the metric registry's."""
         freezes = self.record.freezes
         replans = sum(
             1 for a in self.agents.values() for act in a.navigator.actions
             if act.action in ("replan", "reroute")
         ) + sum(1 for d in self.coordinator.log if d.action == "reroute")  # fmt: skip
         throughput = self.standard.throughput.tracker
-        return {
+        metrics = {
             "scenario": self.setup.name,
             "policy": self.record.policy,
             "seed": self.setup.seed,
@@ -391,6 +394,8 @@ class Episode:
             "events": len(self.events),
             **throughput.metrics(self.setup.units.count, self.sim.time),
         }
+        check_run_metrics(metrics)
+        return metrics
 
 
 class CostmapSegments:

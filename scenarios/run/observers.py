@@ -2,7 +2,10 @@
 
 An observer declares ``every_s`` [s] (None: every step) and, when due, reads the
 episode and its last ``StepReport`` (``scenarios.run.episode``); it never changes the fleet.
-``finish`` runs once at the end, before the episode scores the run.
+``finish`` runs once at the end, before the episode scores the run. An observer that
+measures run metrics declares them in ``feeds`` (keys of the metric registry,
+``scenarios.score.metric_registry``: the ``metrics.json`` keys scored from what it
+collected, or the counters it samples).
 
 The standard set (``StandardObservers``): the replay's scans (every step, sampled per
 unit), plans checked against ground truth (stale-free and inscribed plans), collision
@@ -26,8 +29,15 @@ from planner.freeze import FreezeDetector, UnitObservation
 from planner.plan_safety import plan_safety
 from scenarios.replay.objects import ObjectRecorder
 from scenarios.run.agents import activity
-from scenarios.run.record import CountersSample, GridSample, PlanSample, ScanSample, UnitSample
-from scenarios.score.counts import plan_counts
+from scenarios.run.record import (
+    COUNTERS,
+    CountersSample,
+    GridSample,
+    PlanSample,
+    ScanSample,
+    UnitSample,
+)
+from scenarios.score.counts import freeze_counts, plan_counts
 from scenarios.score.incidents import (
     ContactCell,
     IncidentTracker,
@@ -45,7 +55,8 @@ if TYPE_CHECKING:
 
 
 class Observer(Protocol):
-    """Runs every ``every_s`` [s] of sim time (None: every step)."""
+    """Runs every ``every_s`` [s] of sim time (None: every step). One that measures run
+    metrics says which in a ``feeds`` attribute (module docstring)."""
 
     every_s: float | None
 
@@ -77,6 +88,7 @@ class Schedule:
 
 class _Observer:
     every_s: float | None = None
+    feeds: tuple[str, ...] = ()  # the metrics it measures (module docstring)
 
     def finish(self, episode: Episode) -> None:
         return None
@@ -108,6 +120,8 @@ class PlanChecker(_Observer):
     inscribed in ground truth (``record.plans``: stale-free and inscribed plans,
     ``planner.plan_safety``)."""
 
+    feeds = plan_counts.feeds
+
     def __init__(self, episode: Episode) -> None:
         self.radius = {s.unit_id: s.drive.radius for s in episode.setup.unit_specs()}
 
@@ -126,6 +140,8 @@ class CollisionWatch(_Observer):
     step: the contacts the step began and held, each new incident with the plan its unit
     was driving (the costmap it planned on, kept per unit from the step the path was
     sent) and its contact cells as that map and the truth then held them."""
+
+    feeds = collision_counts.feeds
 
     def __init__(self, episode: Episode) -> None:
         self.radius = {s.unit_id: s.drive.radius for s in episode.setup.unit_specs()}
@@ -182,6 +198,8 @@ class FreezeWatch(_Observer):
     also the LETHAL cells that inscribe it (``held_by``: (unit, point) -> [(stamp,
     points)], ``scenarios.score.inscribing``), whose evidence is read with it."""
 
+    feeds = freeze_counts.feeds  # scored at the end (``planner.freeze.classify``)
+
     def __init__(self) -> None:
         self.detector = FreezeDetector()
         self.evidence: dict = {}
@@ -231,6 +249,8 @@ class Throughput(_Observer):
     """Trips, their returns and unit-ticks for the throughput metrics
     (``scenarios.score.throughput``)."""
 
+    feeds = ("tasks_completed", *ThroughputTracker.metrics.feeds)
+
     def __init__(self, episode: Episode) -> None:
         self.tracker = ThroughputTracker(
             episode.graph, episode.setup.dt, episode.coordinator.arrive_tol
@@ -255,6 +275,8 @@ class Throughput(_Observer):
 class ClearingWatch(_Observer):
     """Time to clear: each removed object's old place, checked at every map read."""
 
+    feeds = ("time_to_clear_s",)
+
     def __init__(self, every_s: float) -> None:
         self.every_s = every_s
 
@@ -266,6 +288,8 @@ class MapTruthWatch(_Observer):
     """The shared costmap against ground truth at every map read (``scenarios.score.map_truth``,
     ``record.map_truth``): the reachable floor from the units' start cells, flood-filled
     again only when the world changed, and the units' footprints at the read left out."""
+
+    feeds = ("map_truth",)
 
     def __init__(self, episode: Episode, every_s: float) -> None:
         self.every_s = every_s
@@ -293,6 +317,8 @@ class CountersRecorder(_Observer):
     trips done (``throughput``'s), units frozen at the step, stale-free and inscribed
     plans (``plan_counts``), collision incidents (``collision_counts``) and scenario
     events so far."""
+
+    feeds = COUNTERS
 
     def __init__(self, throughput: Throughput, every_s: float) -> None:
         self.throughput = throughput

@@ -7,7 +7,7 @@ appends as it goes; writers only read.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -134,6 +134,11 @@ class CountersSample:
     scenario_collisions: int
     events: int
     inscribed_plans: int = 0
+
+
+COUNTERS = tuple(f.name for f in fields(CountersSample) if f.name != "stamp")
+"""The counters a ``CountersSample`` holds (its fields but ``stamp``), each a metric of
+the metric registry (``scenarios.score.metric_registry``)."""
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,12 @@ from collections.abc import Sequence
 
 from planner.freeze import PHANTOM, TRUE_BLOCK
 from scenarios.run.record import FreezeRecord, PlanSample
+from scenarios.score.metric_registry import feeds
 
 SECONDS_DECIMALS = 3  # [s] 1 ms
 
 
+@feeds("phantom_freezes", "phantom_freeze_seconds", "true_block_freezes", "true_block_seconds")
 def freeze_counts(
     freezes: Sequence[FreezeRecord], until: float | None = None
 ) -> dict[str, int | float]:
@@ -36,6 +38,7 @@ def freeze_counts(
     }
 
 
+@feeds("stale_free_plans", "inscribed_plans")
 def plan_counts(plans: Sequence[PlanSample]) -> dict[str, int]:
     """``stale_free_plans`` and ``inscribed_plans`` of ``plans`` (module docstring)."""
     return {

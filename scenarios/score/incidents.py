@@ -38,6 +38,7 @@ import numpy as np
 
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, UNKNOWN
 from mapserver.core.geometry import GridGeometry
+from scenarios.score.metric_registry import feeds
 
 if TYPE_CHECKING:
     from fleet.sim import CollisionEvent  # imports pybullet
@@ -143,6 +144,7 @@ class IncidentTracker:
         return begun
 
 
+@feeds("collisions", "scenario_collisions", "collision_seconds", "collision_contacts")
 def collision_counts(incidents: Sequence[CollisionIncident]) -> dict[str, int | float]:
     """``collisions``, ``scenario_collisions``, ``collision_seconds`` [s] and
     ``collision_contacts`` of ``incidents`` (module docstring), for ``metrics.json``."""

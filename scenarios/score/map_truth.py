@@ -50,9 +50,10 @@ from fleet.shapes import Cylinder
 from mapserver.core.costvalues import INSCRIBED, LETHAL, UNKNOWN
 from mapserver.core.geometry import GridGeometry
 from scenarios.run.record import MapTruthSample
+from scenarios.score.metric_registry import REGISTRY
 
-KEYS = ("phantom_cells", "forgotten_cells", "unknown_share")
-"""The three numbers, in ``metrics.json``'s order."""
+KEYS = REGISTRY.parts("map_truth")
+"""The three numbers, in ``metrics.json``'s order (the metric registry's)."""
 MEAN_DECIMALS = 3
 SHARE_DECIMALS = 6
 

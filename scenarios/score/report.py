@@ -45,6 +45,7 @@ from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNO
 from mapserver.store.atomic import atomic_output
 from planner.freeze import PHANTOM, TRUE_BLOCK
 from scenarios.run.record import EventRecord, RunRecord
+from scenarios.score.metric_registry import View, shown_in
 from scenarios.score.report_map_truth import draw_map_truth
 
 FIGURE_INCHES = (16.0, 9.0)
@@ -63,33 +64,6 @@ COLLISION_STYLE = {
 
 REMOVAL_KINDS = ("remove", "move")  # events after which an object's old place must clear
 
-# (metrics key, label, format) shown in the title, in this order, when present.
-TITLE_METRICS = (
-    ("phantom_freezes", "phantom freezes", "{:d}"),
-    ("phantom_freeze_seconds", "phantom freeze time", "{:.1f} s"),
-    ("true_block_freezes", "true blocks", "{:d}"),
-    ("true_block_seconds", "true-block time", "{:.1f} s"),
-    ("stale_free_plans", "stale-free plans", "{:d}"),
-    ("inscribed_plans", "inscribed plans", "{:d}"),
-    ("collisions", "collisions", "{:d}"),
-    ("tasks_completed", "tasks done", "{:d}"),
-    ("replans", "replans", "{:d}"),
-    ("deadlocks", "deadlocks", "{:d}"),
-    ("sim_seconds", "sim", "{:.0f} s"),
-)
-
-# (metrics key, label, format) of the throughput table; ``wait_s`` rows follow.
-THROUGHPUT_METRICS = (
-    ("trips_per_unit_hour", "trips per unit-hour", "{:.1f}"),
-    ("ideal_trip_s", "ideal trip (mean)", "{:.1f} s"),
-    ("trip_time_ratio", "actual / ideal trip", "{:.2f}"),
-    ("fleet_efficiency", "fleet efficiency", "{:.1%}"),
-    ("moving_share", "moving, with a task", "{:.1%}"),
-    ("mean_speed_moving", "mean speed moving", "{:.2f} m/s"),
-    ("trips_returned", "trips returned", "{:d}"),
-    ("trips_retried", "trips retried", "{:d}"),
-    ("returned_s", "time in returned trips", "{:.1f} s"),
-)
 TABLE_ROW_SCALE = 1.3  # row height of the throughput table, in table rows of the font
 TABLE_FULL_ROWS = 11  # rows that fit at TABLE_ROW_SCALE; more are squeezed into their height
 
@@ -121,11 +95,10 @@ def title(record: RunRecord) -> str:
     """Two lines: scenario, policy and seed; then the key metrics that the record has."""
     head = f"{record.scenario}  |  policy {record.policy}  |  seed {record.seed}"
     shown = []
-    for key, label, fmt in TITLE_METRICS:
-        value = record.metrics.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            value = int(value) if fmt == "{:d}" else float(value)
-            shown.append(f"{label} {fmt.format(value)}" + _scenario_share(record, key))
+    for m in shown_in(View.REPORT_TITLE):  # the metric registry's, in its order
+        if m.number(record.metrics) is not None:
+            value = m.text(m.stored(record.metrics))
+            shown.append(f"{m.title} {value}" + _scenario_share(record, m.key))
     return head + ("\n" + "  ·  ".join(shown) if shown else "")
 
 
@@ -403,16 +376,10 @@ def _draw_time_to_clear(ax: Axes, record: RunRecord, end: float) -> None:
 
 
 def throughput_rows(record: RunRecord) -> list[tuple[str, str]]:
-    """(label, value) rows of the throughput table, for the keys the record has."""
-    rows = []
-    for key, label, fmt in THROUGHPUT_METRICS:
-        if key in record.metrics:
-            value = record.metrics[key]
-            rows.append((label, "n/a" if value is None else fmt.format(value)))
-    wait = record.metrics.get("wait_s")
-    if isinstance(wait, dict):
-        rows += [(f"standing, {cause}", f"{seconds:.1f} s") for cause, seconds in wait.items()]
-    return rows
+    """(title, value) rows of the throughput table: the metric registry's, in its order,
+    that the record has."""
+    table = shown_in(View.REPORT_TABLE)
+    return [(m.title, m.text(m.stored(record.metrics))) for m in table if m.present(record.metrics)]
 
 
 def _draw_throughput(ax: Axes, record: RunRecord) -> None:

@@ -55,6 +55,7 @@ from planner.lane_graph import LaneGraph
 from planner.reservations import unit_order
 from scenarios.run.agents import AgentState, activity
 from scenarios.run.record import Attempt, TripRecord, UnfinishedTrip
+from scenarios.score.metric_registry import REGISTRY, feeds
 from scenarios.spec.tasks import Task
 
 Point = tuple[float, float]
@@ -62,8 +63,9 @@ Point = tuple[float, float]
 AT_NODE_M = 0.1
 """[m] default ``at_node_m``: a unit this close to its start node stands on it (the lane
 coordinator's default ``arrive_tol``)."""
-WAIT_CAUSES = ("traffic", "freeze", "dwell", "breakdown", "turn")
-"""The keys of ``wait_s``; ``turn`` is one beyond the four of docs/files.md."""
+WAIT_CAUSES = REGISTRY.parts("wait_s")
+"""The keys of ``wait_s``, as the metric registry declares them (traffic, freeze, dwell,
+breakdown, turn: ``turn`` is one beyond the four of docs/files.md)."""
 STANDING_CAUSES = {"broken_down": "breakdown", "dwelling": "dwell", "frozen": "freeze"}
 """The wait cause of each ``activity`` that is one (``scenarios.run.agents.activity``)."""
 
@@ -264,6 +266,11 @@ class ThroughputTracker:
         done = [a for t in self.trips for a in t.returned]
         return done + [a for attempts in self._returned.values() for a in attempts]
 
+    @feeds(
+        "trips_per_unit_hour", "ideal_trip_s", "trip_time_ratio", "fleet_efficiency",
+        "moving_share", "mean_speed_moving", "wait_s", "trips_returned", "trips_retried",
+        "returned_s",
+    )  # fmt: skip
     def metrics(self, units: int, sim_seconds: float) -> dict[str, object]:
         """The throughput keys of ``metrics.json`` for ``units`` units over ``sim_seconds``
         [s] (docs/throughput.md); None where a mean has nothing to average."""

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 from scipy.stats import t as student_t
 
+from scenarios.score.metric_registry import Better
+
 __all__ = ["CONFIDENCE", "Summary", "summarise", "verdict"]
 
 CONFIDENCE = 0.95
@@ -42,14 +44,19 @@ def summarise(values: Sequence[float]) -> Summary:
     return Summary(n, mean, quantile * math.sqrt(variance) / math.sqrt(n))
 
 
-def verdict(candidate: Summary, baseline: Summary, higher_is_better: bool) -> str:
+def verdict(candidate: Summary, baseline: Summary, better: Better) -> str:
     """``better`` or ``worse`` when the two 95 % intervals do not overlap (``candidate``
-    is better when its mean is lower, or higher with ``higher_is_better``), else ``~``
+    is better when its mean is lower with ``Better.LOWER``, higher with
+    ``Better.HIGHER``; ``lower`` or ``higher`` with ``Better.NEITHER``), else ``~``
     (overlapping, or a side without an interval: no difference beyond noise)."""
     if candidate.half_width is None or baseline.half_width is None:
         return "~"
     if candidate.mean + candidate.half_width < baseline.mean - baseline.half_width:
-        return "worse" if higher_is_better else "better"
-    if candidate.mean - candidate.half_width > baseline.mean + baseline.half_width:
-        return "better" if higher_is_better else "worse"
-    return "~"
+        side = Better.LOWER
+    elif candidate.mean - candidate.half_width > baseline.mean + baseline.half_width:
+        side = Better.HIGHER
+    else:
+        return "~"
+    if better is Better.NEITHER:
+        return side.value
+    return "better" if side is better else "worse"

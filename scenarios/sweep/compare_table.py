@@ -1,33 +1,36 @@
 """The tables of ``fleetmap compare``: per scenario, one Markdown table with a row per
-policy and a column per headline metric, each cell the metric's mean over seeds and the
-half-width of its 95 % Student's t interval (``scenarios.sweep.compare_stats``), then a row
-saying whether the default policy (decay) differs from the baseline (binary) beyond noise.
+policy and a column per metric the metric registry shows in ``compare``
+(``scenarios.score.metric_registry``: its header, decimals, better direction and how
+seeds are reduced), each cell the metric's mean over seeds and the half-width of its
+95 % Student's t interval (``scenarios.sweep.compare_stats``), then a row saying whether
+the default policy differs from the baseline (binary) beyond noise. An optional metric
+(``map_truth``'s) has a column only when some run reports it.
 
 Cells: ``12.3 ± 4.5`` (mean ± half-width, the metric's unit); ``12.3 (n=1)`` when only one
-seed gave a value (no interval); ``-`` when none did; ``time_to_clear_s`` reads ``-``
-when no run removed anything, ``never`` when objects were removed and no run of the
-policy cleared one, and ``(k never)`` after the mean of the runs that did when k runs
-that removed something cleared nothing. The verdict row says, per metric,
-``better``/``worse`` when decay's and binary's intervals do not overlap and ``~`` when
-they do (or a side has no interval).
+seed gave a value (no interval); ``-`` when none did; a metric reduced otherwise than by
+the mean (a sum, a maximum) is that number and ``(n=k)``, the runs it pools. A metric
+read from a list (``time_to_clear_s``) reads ``-`` when no run's list has an entry,
+``never`` when lists had entries and no run of the policy gave a number, and ``(k never)``
+after the mean of the runs that did when k runs with entries gave none. The verdict row
+says, per metric, ``better``/``worse`` when the two intervals do not overlap (``higher``/
+``lower`` for a metric with no better direction) and ``~`` when they do (or a side has
+no interval).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from mapserver.core.sensor_model import DEFAULT_POLICY
+from scenarios.score.metric_registry import Metric, Read, Reduce, View, shown_in
 from scenarios.sweep.compare_stats import CONFIDENCE, Summary, summarise, verdict
-from scenarios.sweep.metric_values import CLEAR_KEY, map_truth_names, metric_value
 from scenarios.sweep.parallel import RunResult
 
 __all__ = [
     "BASELINE",
     "CANDIDATE",
-    "HEADLINE",
-    "Column",
     "columns_for",
     "compare_markdown",
     "scenario_table",
@@ -38,41 +41,13 @@ CANDIDATE = DEFAULT_POLICY.value  # the project's default policy
 BASELINE = "binary"  # the Nav2 obstacle-layer baseline
 
 
-@dataclass(frozen=True)
-class Column:
-    """A headline metric: its ``name`` (``metric_value``), ``title``, whether higher is
-    better, and the decimals of its cells."""
-
-    name: str
-    title: str
-    higher_is_better: bool = False
-    decimals: int = 1
-
-
-HEADLINE = (
-    Column("phantom_freezes", "phantom freezes"),
-    Column("phantom_freeze_seconds", "phantom s"),
-    Column("true_block_freezes", "true blocks"),
-    Column("true_block_seconds", "true block s"),
-    Column("stale_free_plans", "stale-free plans"),
-    Column("inscribed_plans", "inscribed plans"),
-    Column("collisions", "collisions"),
-    Column("collision_seconds", "collision s"),
-    Column("tasks_completed", "tasks", higher_is_better=True),
-    Column("trips_per_unit_hour", "trips/unit-h", higher_is_better=True),
-    Column("fleet_efficiency", "efficiency", higher_is_better=True, decimals=2),
-    Column(CLEAR_KEY, "time to clear s"),
-)
-MAP_TRUTH_COLUMNS = {
-    "map_truth.phantom_cells": Column("map_truth.phantom_cells", "phantom cells"),
-    "map_truth.forgotten_cells": Column("map_truth.forgotten_cells", "forgotten cells"),
-    "map_truth.unknown_share": Column("map_truth.unknown_share", "unknown share", decimals=3),
-}
-
-
-def columns_for(runs: Sequence[Mapping[str, Any]]) -> list[Column]:
-    """The headline columns, plus the map-truth means some run of ``runs`` reports."""
-    return [*HEADLINE, *(MAP_TRUTH_COLUMNS[n] for n in map_truth_names(runs))]
+def columns_for(runs: Sequence[Mapping[str, Any]]) -> list[Metric]:
+    """The registry's ``compare`` metrics, an optional one only when some run of ``runs``
+    (metrics dicts) has a number for it."""
+    return [
+        m for m in shown_in(View.COMPARE)
+        if not m.optional or any(m.number(r) is not None for r in runs)
+    ]  # fmt: skip
 
 
 def scenario_table(
@@ -96,12 +71,9 @@ def scenario_table(
 def table_lines(by_policy: Mapping[str, Sequence[Mapping[str, Any]]]) -> list[str]:
     """The Markdown table alone, a line per row (``scenario_table``'s arguments)."""
     columns = columns_for([m for runs in by_policy.values() for m in runs])
-    stats = {
-        policy: [summarise(_values(runs, c.name)) for c in columns]
-        for policy, runs in by_policy.items()
-    }
+    stats = {policy: [_summary(m, runs) for m in columns] for policy, runs in by_policy.items()}
     lines = [
-        "| policy | runs | " + " | ".join(c.title for c in columns) + " |",
+        "| policy | runs | " + " | ".join(m.header for m in columns) + " |",
         "|---|---:|" + "---:|" * len(columns),
     ]
     for policy, runs in by_policy.items():
@@ -109,32 +81,39 @@ def table_lines(by_policy: Mapping[str, Sequence[Mapping[str, Any]]]) -> list[st
         lines.append(f"| {policy} | {len(runs)} | " + " | ".join(cells) + " |")
     if CANDIDATE in stats and BASELINE in stats:
         marks = [
-            verdict(a, b, c.higher_is_better)
-            for a, b, c in zip(stats[CANDIDATE], stats[BASELINE], columns, strict=True)
+            verdict(a, b, m.better)
+            for a, b, m in zip(stats[CANDIDATE], stats[BASELINE], columns, strict=True)
         ]
         lines.append(f"| {CANDIDATE} vs {BASELINE} | | " + " | ".join(marks) + " |")
     return lines
 
 
-def _values(runs: Sequence[Mapping[str, Any]], name: str) -> list[float]:
-    return [v for v in (metric_value(m, name) for m in runs) if v is not None]
+def _summary(metric: Metric, runs: Sequence[Mapping[str, Any]]) -> Summary:
+    """``metric`` over ``runs``: the mean and its interval, or (reduced otherwise) the
+    reduced number without one."""
+    values = [v for v in (metric.number(m) for m in runs) if v is not None]
+    if metric.reduce is Reduce.MEAN:
+        return summarise(values)
+    reduced = metric.reduce.of(values)
+    return Summary(len(values), math.nan if reduced is None else reduced, None)
 
 
-def _cell(summary: Summary, column: Column, runs: Sequence[Mapping[str, Any]]) -> str:
-    never = _never(runs) if column.name == CLEAR_KEY else 0
+def _cell(summary: Summary, metric: Metric, runs: Sequence[Mapping[str, Any]]) -> str:
+    never = _never(runs, metric) if metric.read is Read.LIST_MEAN else 0
     if summary.n == 0:
         return "never" if never else "-"
-    mean = f"{summary.mean:.{column.decimals}f}"
-    text = f"{mean} (n=1)" if summary.half_width is None else (
-        f"{mean} ± {summary.half_width:.{column.decimals}f}")  # fmt: skip
+    number = metric.fixed(summary.mean)
+    text = f"{number} (n={summary.n})" if summary.half_width is None else (
+        f"{number} ± {metric.fixed(summary.half_width)}")  # fmt: skip
     if never:
         text += f" ({never} never)"
     return text
 
 
-def _never(runs: Sequence[Mapping[str, Any]]) -> int:
-    """The runs that removed something (a non-empty ``time_to_clear_s``) and cleared none."""
-    return sum(1 for m in runs if m.get(CLEAR_KEY) and metric_value(m, CLEAR_KEY) is None)
+def _never(runs: Sequence[Mapping[str, Any]], metric: Metric) -> int:
+    """The runs whose list of ``metric`` has entries (something was removed) and no number
+    (nothing cleared)."""
+    return sum(1 for m in runs if metric.stored(m) and metric.number(m) is None)
 
 
 def runs_by_policy(

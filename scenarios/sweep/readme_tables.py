@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mapserver.core.errors import FleetmapError
+from scenarios.doc_blocks import marked_blocks
 from scenarios.sweep.compare import DEFAULT_POLICIES, parse_policies
 from scenarios.sweep.compare_table import runs_by_policy, table_lines
 from scenarios.sweep.parallel import RunResult
@@ -68,14 +69,11 @@ class Block:
 def blocks(text: str, root: Path) -> list[Block]:
     """Every block of README ``text`` (module docstring); scenario paths relative to
     ``root``. ReadmeError for a block without its end marker or with bad arguments."""
-    found = []
-    for match in BEGIN.finditer(text):
-        name = match["name"]
-        end = text.find(END.format(name=name), match.end())
-        if end < 0:
-            raise ReadmeError(f"README block {name!r}: no {END.format(name=name)!r} after it")
-        found.append(Block(name, _sweep(name, match["args"], root), match.end() + 1, end))
-    return found
+    try:
+        marked = marked_blocks(text, BEGIN, END)
+    except ValueError as exc:
+        raise ReadmeError(f"README block: {exc}") from None
+    return [Block(m["name"], _sweep(m["name"], m["args"], root), a, b) for m, a, b in marked]
 
 
 def _sweep(name: str, args: str, root: Path) -> Sweep:

@@ -1,33 +1,38 @@
 """A sweep's outputs: ``results.csv`` (one row per run) and ``tradeoff.png``.
 
 results.csv columns: ``scenario`` (file stem), ``policy``, ``seed``, one column per
-swept parameter (its dotted key), every metrics.json key (docs/files.md first, then
-any other key in first-seen order; ``scenario``/``policy``/``seed`` are not repeated),
-then ``status`` (``ok``/``error``), ``error``, ``run_wall_seconds`` [s] and ``out_dir``.
-A metric that is an object is one column per leaf, named by its dotted path
-(``map_truth.forgotten_cells.mean``, ``wait_s.traffic``). Lists are joined with ``;``
-(a null item is ``null``); a missing value is empty.
+swept parameter (its dotted key), every metrics.json key (those docs/files.md 3 names
+always; in the metric registry's order, ``scenarios.score.metric_registry``; then any key
+it does not know, from runs scored before, in first-seen order; ``scenario``/``policy``/
+``seed`` are not repeated), then
+``status`` (``ok``/``error``), ``error``, ``run_wall_seconds`` [s] and ``out_dir``. A
+metric that is an object is one column per leaf, named by its dotted path
+(``map_truth.forgotten_cells.mean``, ``wait_s.traffic``). A list (``time_to_clear_s``) is
+JSON (``[4.5, null]``, ``[]``), so ``json.loads`` reads it back; a missing value is empty.
+``fleetmap compare`` writes its ``compare.csv`` the same way.
 
-tradeoff.png: phantom freeze seconds [s] (y) against stale-free plans (x), one point per
-successful run, coloured by policy; one subplot per swept parameter with each point
-labelled by its value (one plot when the grid is empty).
+tradeoff.png: phantom freeze time [s] (y) against stale-free plans (x), one point per
+successful run, coloured by policy, axes labelled from the registry; one subplot per
+swept parameter with each point labelled by its value (one plot when the grid is empty).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from mapserver.store.atomic import atomic_output
+from scenarios.score.metric_registry import REGISTRY, metric
 from scenarios.sweep.parallel import RunResult
 from scenarios.sweep.sweep_file import Sweep
 
 __all__ = [
-    "CONTRACT_METRICS",
     "cell_text",
+    "flatten",
     "result_columns",
     "result_rows",
     "write_csv",
@@ -36,24 +41,8 @@ __all__ = [
 
 RESULTS_FILENAME = "results.csv"
 PLOT_FILENAME = "tradeoff.png"
-CONTRACT_METRICS = (
-    "scenario",
-    "policy",
-    "seed",
-    "units",
-    "sim_seconds",
-    "wall_seconds",
-    "tasks_completed",
-    "phantom_freezes",
-    "phantom_freeze_seconds",
-    "true_block_freezes",
-    "stale_free_plans",
-    "collisions",
-    "time_to_clear_s",
-    "replans",
-    "deadlocks",
-    "scans_fused",
-)
+TRADEOFF_X = "stale_free_plans"
+TRADEOFF_Y = "phantom_freeze_seconds"
 RUN_KEYS = ("scenario", "policy", "seed")
 TAIL_COLUMNS = ("status", "error", "run_wall_seconds", "out_dir")
 POLICY_COLOURS = {"decay": "tab:blue", "binary": "tab:orange", "sticky": "tab:red"}
@@ -61,9 +50,13 @@ POLICY_COLOURS = {"decay": "tab:blue", "binary": "tab:orange", "sticky": "tab:re
 
 def result_columns(sweep: Sweep, results: Sequence[RunResult]) -> list[str]:
     """The CSV header (module docstring)."""
-    metrics = [k for k in CONTRACT_METRICS if k not in RUN_KEYS]
-    for result in results:
-        metrics += [k for k in flatten(result.metrics) if k not in metrics and k not in RUN_KEYS]
+    order = {key: i for i, key in enumerate(REGISTRY.json_keys())}
+    always = [k for k in REGISTRY.contract_keys() if not REGISTRY.parts(k)]
+    given = [k for r in results for k in flatten(r.metrics)]
+    seen = dict.fromkeys(k for k in [*always, *given] if k not in RUN_KEYS)
+    known = [k for k in seen if k.split(".")[0] in order]
+    metrics = sorted(known, key=lambda k: order[k.split(".")[0]])  # stable: parts in order
+    metrics += [k for k in seen if k not in known]
     return [*RUN_KEYS, *sweep.parameter_names, *metrics, *TAIL_COLUMNS]
 
 
@@ -125,16 +118,16 @@ def write_plot(sweep: Sweep, results: Sequence[RunResult], path: Path) -> None:
     for ax, name in zip(axes, panels, strict=True):
         for policy in policies:
             points = [r for r in ok if r.run.policy == policy]
-            xs = [_number(r.metrics.get("stale_free_plans")) for r in points]
-            ys = [_number(r.metrics.get("phantom_freeze_seconds")) for r in points]
+            xs = [_number(r.metrics.get(TRADEOFF_X)) for r in points]
+            ys = [_number(r.metrics.get(TRADEOFF_Y)) for r in points]
             ax.scatter(xs, ys, label=policy, color=POLICY_COLOURS.get(policy), alpha=0.8)
             if name is not None:
                 params = [dict(r.run.parameters)[name] for r in points]
                 for x, y, value in zip(xs, ys, params, strict=True):
                     ax.annotate(str(value), (x, y), textcoords="offset points", xytext=(4, 4),
                                 fontsize=7)  # fmt: skip
-        ax.set_xlabel("stale-free plans")
-        ax.set_ylabel("phantom freeze seconds [s]")
+        ax.set_xlabel(metric(TRADEOFF_X).label)
+        ax.set_ylabel(metric(TRADEOFF_Y).label)
         ax.set_title(name if name is not None else "all runs", fontsize=9)
         ax.grid(True, alpha=0.3)
         if policies:
@@ -159,11 +152,12 @@ def _number(value: Any) -> float:
 
 
 def cell_text(value: Any) -> str:
-    """A CSV cell: lists joined with ``;``, None empty (``null`` inside lists)."""
+    """A CSV cell: a list (or an object left whole) as JSON, None empty, booleans
+    ``true``/``false``."""
     if value is None:
         return ""
-    if isinstance(value, list | tuple):
-        return ";".join("null" if v is None else str(v) for v in value)
+    if isinstance(value, list | tuple | Mapping):
+        return json.dumps(value)
     if isinstance(value, bool):
         return str(value).lower()
     return str(value)

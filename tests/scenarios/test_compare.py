@@ -5,6 +5,7 @@ the per-run metric values (time to clear, optional map_truth), the table, the co
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -13,10 +14,10 @@ from scenario_helpers import TINY, tiny5
 
 import scenarios.sweep.parallel
 from scenarios.cli.main import main
+from scenarios.score.metric_registry import Better, metric
 from scenarios.sweep.compare import parse_policies
 from scenarios.sweep.compare_stats import Summary, summarise, verdict
-from scenarios.sweep.compare_table import scenario_table
-from scenarios.sweep.metric_values import map_truth_names, metric_value
+from scenarios.sweep.compare_table import columns_for, scenario_table
 from scenarios.sweep.parallel import RunResult
 
 
@@ -39,14 +40,17 @@ def test_one_value_gives_no_interval_and_none_gives_no_mean() -> None:
 
 def test_verdict_needs_intervals_apart() -> None:
     low, high = Summary(3, 1.0, 0.5), Summary(3, 3.0, 0.5)  # [0.5, 1.5] and [2.5, 3.5]
-    assert verdict(low, high, higher_is_better=False) == "better"
-    assert verdict(high, low, higher_is_better=False) == "worse"
-    assert verdict(low, high, higher_is_better=True) == "worse"
-    assert verdict(high, low, higher_is_better=True) == "better"
+    lower, higher = Better.LOWER, Better.HIGHER
+    assert verdict(low, high, lower) == "better"
+    assert verdict(high, low, lower) == "worse"
+    assert verdict(low, high, higher) == "worse"
+    assert verdict(high, low, higher) == "better"
+    assert verdict(low, high, Better.NEITHER) == "lower"  # apart, but neither is better
+    assert verdict(high, low, Better.NEITHER) == "higher"
     touching = Summary(3, 2.0, 0.5)  # [1.5, 2.5] touches both
-    assert verdict(low, touching, False) == verdict(touching, high, False) == "~"
-    assert verdict(Summary(1, 1.0, None), high, False) == "~"  # no interval: no claim
-    assert verdict(Summary(3, 0.0, 0.0), Summary(3, 2.0, 0.0), False) == "better"
+    assert verdict(low, touching, lower) == verdict(touching, high, lower) == "~"
+    assert verdict(Summary(1, 1.0, None), high, lower) == "~"  # no interval: no claim
+    assert verdict(Summary(3, 0.0, 0.0), Summary(3, 2.0, 0.0), lower) == "better"
 
 
 # ---------------------------------------------------------------------------- metric values
@@ -60,15 +64,17 @@ def truth(forgotten: float) -> dict:
 
 def test_metric_values_read_time_to_clear_and_optional_map_truth() -> None:
     run = {"time_to_clear_s": [2.0, None, 4.0], "collisions": 0, "map_truth": truth(6.5)}
-    assert metric_value(run, "time_to_clear_s") == 3.0  # mean of the non-null entries
-    assert metric_value({"time_to_clear_s": [None]}, "time_to_clear_s") is None
-    assert metric_value(run, "collisions") == 0.0
-    assert metric_value(run, "map_truth.forgotten_cells") == 6.5
-    assert metric_value({"collisions": 0}, "map_truth.forgotten_cells") is None
-    assert metric_value({"map_truth": {"forgotten_cells": 3}}, "map_truth.forgotten_cells") is None
-    assert metric_value({"collisions": True}, "collisions") is None
-    assert map_truth_names([{"collisions": 0}]) == []
-    assert map_truth_names([{}, run]) == [
+    clear, forgotten = metric("time_to_clear_s"), metric("map_truth.forgotten_cells")
+    assert clear.number(run) == 3.0  # mean of the non-null entries
+    assert clear.number({"time_to_clear_s": [None]}) is None
+    assert metric("collisions").number(run) == 0.0
+    assert forgotten.number(run) == 6.5
+    assert forgotten.number({"collisions": 0}) is None
+    assert forgotten.number({"map_truth": {"forgotten_cells": 3}}) is None
+    assert metric("collisions").number({"collisions": True}) is None
+    optional = [m.key for m in columns_for([{}, run]) if m.optional]
+    assert [m.key for m in columns_for([{"collisions": 0}]) if m.optional] == []
+    assert optional == [
         "map_truth.phantom_cells",
         "map_truth.forgotten_cells",
         "map_truth.unknown_share",
@@ -161,6 +167,11 @@ def test_compare_runs_every_seed_and_writes_csv_and_tables(
         ("tiny5", "binary", "1", "ok"),
     ]
     assert all(float(r["sim_seconds"]) == 4.0 for r in rows)
+    nested = [c for c in rows[0] if "." in c or c == "time_to_clear_s"]  # objects' leaves
+    assert "wait_s.traffic" in nested and "map_truth.forgotten_cells.mean" in nested
+    for row in rows:  # every nested value reads back as JSON (a list, a leaf's number)
+        assert isinstance(json.loads(row["time_to_clear_s"]), list)
+        assert all(isinstance(json.loads(row[c]), int | float | list) for c in nested if row[c])
     table = (out / "compare.md").read_text()
     assert table in printed
     assert table_rows(table)["binary"]["runs"] == "2"

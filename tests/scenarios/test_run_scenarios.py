@@ -12,6 +12,7 @@ from mapserver.client import MapClient
 from scenarios.cli.main import main
 from scenarios.run import runner
 from scenarios.run.embedded_server import EmbeddedServer
+from scenarios.score.metric_registry import REGISTRY
 from scenarios.spec.scenario import load_scenario
 
 TINY = "scenarios/tiny.yaml"
@@ -39,6 +40,7 @@ def first_run(tmp_path_factory):
 def test_a_run_writes_every_output_with_every_contract_key(first_run, capsys):
     out, metrics = first_run
     assert CONTRACT_KEYS <= set(metrics)
+    REGISTRY.check(metrics)  # every key declared in the metric registry, none missing
     assert metrics["scenario"] == "tiny" and metrics["policy"] == "dual"  # the default
     assert metrics["sim_seconds"] == pytest.approx(20.0)
     assert metrics["scans_fused"] == 2 * 20 * 10  # two units at 10 Hz
