@@ -505,6 +505,29 @@ def one_way_loops(n_x: int, n_y: int) -> tuple[tuple[str, str], ...]:
     return tuple(pairs)
 
 
+def one_way_aisles(n_x: int, n_y: int) -> tuple[tuple[str, str], ...]:
+    """One-way rows for the ``n_x`` x ``n_y`` junction grid of ``from_warehouse``: every
+    horizontal stretch (the aisles between rack rows, and the staging and top rows) is
+    driven one way, the rows alternating east / west from the bottom one (east); the
+    columns (cross-aisles and the perimeter's sides) stay two-way.
+
+    The long stretches, where two units meeting head-on have nowhere to pass, carry one
+    direction; the short column stretches keep trips short. With at least two rows the
+    graph stays strongly connected (a row of each direction, joined by two-way
+    columns; Robbins, *A theorem on graphs, with an application to a problem of traffic
+    control*, Amer. Math. Monthly 46, 1939, for why an orientation needs the two-way
+    links). Needs at least two junctions each way.
+    """
+    if n_x < 2 or n_y < 2:
+        raise ValueError(f"one-way aisles need at least 2 x 2 junctions, got {n_x} x {n_y}")
+    pairs: list[tuple[str, str]] = []
+    for iy in range(n_y):
+        for ix in range(n_x - 1):
+            a, b = f"j{ix}_{iy}", f"j{ix + 1}_{iy}"
+            pairs.append((a, b) if iy % 2 == 0 else (b, a))
+    return tuple(pairs)
+
+
 def _dist(p: tuple[float, float], q: Sequence[float]) -> float:
     return math.hypot(q[0] - p[0], q[1] - p[1])
 

@@ -26,14 +26,16 @@ from pydantic import Discriminator, Field
 from fleet.boxworld import BoxWorld, Warehouse
 from fleet.layout import Kind, Layout, LayoutError
 from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
-from planner.lane_graph import LaneGraph, one_way_loops
+from planner.lane_graph import LaneGraph, one_way_aisles, one_way_loops
 from scenarios.spec.yaml_lines import Document, FieldPath, field_path
 
 Point = tuple[float, float]
 
 MAX_FLOOR_M = 500.0
-ONE_WAY_LOOPS = "loops"
-"""``layout.one_way: loops``: every lane one way, Kiva-style (``one_way_loops``)."""
+ONE_WAY_PATTERNS = {"loops": one_way_loops, "aisles": one_way_aisles}
+"""``layout.one_way`` by name: the pattern's pairs for an ``n_x`` x ``n_y`` junction grid
+(``loops``: every lane one way, Kiva-style, ``one_way_loops``; ``aisles``: the rows one
+way, alternating, the columns two-way, ``one_way_aisles``)."""
 LANE_NODE_ID = re.compile(r"[jw]\d+_\d+([hv]\d+)?")
 """Ids the lane graph gives its junctions and waypoints; stops may not take them."""
 
@@ -84,13 +86,19 @@ OneWayPair = Annotated[
     reworded("must be a pair [junction_a, junction_b] of junction ids"),
 ]
 OneWay = Annotated[
-    variant(Annotated[Literal["loops"], reworded("must be 'loops' or a list of pairs")], "loops")
+    variant(
+        Annotated[
+            Literal[tuple(ONE_WAY_PATTERNS)],
+            reworded("must be 'loops', 'aisles' or a list of pairs"),
+        ],
+        "pattern",
+    )
     | variant(list[OneWayPair], "pairs"),
     Discriminator(
-        lambda v: variant_tag("loops" if isinstance(v, str) else "pairs"),
+        lambda v: variant_tag("pattern" if isinstance(v, str) else "pairs"),
     ),
 ]
-"""``loops`` or a list of ``[junction_a, junction_b]`` lanes driven only a -> b."""
+"""``loops``, ``aisles`` or a list of ``[junction_a, junction_b]`` lanes driven only a -> b."""
 
 
 class LayoutFields(Section):
@@ -197,12 +205,13 @@ def check_clear(
 
 def parse_one_way(doc: Document, lf: LayoutFields, layout: Layout) -> tuple[tuple[str, str], ...]:
     """The ``one_way`` pairs ``[junction_a, junction_b]`` (checked by ``check_lanes``), or
-    ``loops``: Kiva-style one-way highways over the whole lane grid (``one_way_loops``)."""
-    if lf.one_way == ONE_WAY_LOOPS:
+    a pattern over the whole lane grid (``ONE_WAY_PATTERNS``: ``loops``, Kiva-style
+    one-way highways; ``aisles``, the rows one way and the columns two-way)."""
+    if isinstance(lf.one_way, str):
         try:
-            return one_way_loops(len(layout.lane_x), len(layout.lane_y))
+            return ONE_WAY_PATTERNS[lf.one_way](len(layout.lane_x), len(layout.lane_y))
         except ValueError as exc:
-            raise doc.error(("layout", "one_way"), str(exc), ONE_WAY_LOOPS) from None
+            raise doc.error(("layout", "one_way"), str(exc), lf.one_way) from None
     return tuple((a, b) for a, b in lf.one_way or ())
 
 

@@ -226,6 +226,33 @@ def test_corridors_chain_the_waypoints_and_stations_of_one_stretch(warehouse):
 
 
 @pytest.mark.parametrize(("n_x", "n_y"), [(2, 2), (3, 2), (2, 5), (6, 9), (7, 4)])
+def test_one_way_aisles_turn_every_row_one_way_alternating_and_keep_columns_two_way(n_x, n_y):
+    import networkx as nx
+
+    from planner.lane_graph import one_way_aisles
+
+    pairs = one_way_aisles(n_x, n_y)
+    assert len(pairs) == (n_x - 1) * n_y  # every row stretch once, no column stretch
+    for a, b in pairs:
+        (ax, ay), (bx, by) = (tuple(map(int, n[1:].split("_"))) for n in (a, b))
+        assert ay == by and abs(bx - ax) == 1
+        assert (bx > ax) == (ay % 2 == 0)  # the bottom row east, then alternating
+    g = nx.DiGraph(pairs)
+    for ix in range(n_x):  # the columns both ways
+        for iy in range(n_y - 1):
+            g.add_edge(f"j{ix}_{iy}", f"j{ix}_{iy + 1}")
+            g.add_edge(f"j{ix}_{iy + 1}", f"j{ix}_{iy}")
+    assert nx.is_strongly_connected(g)
+
+
+def test_one_way_aisles_need_two_junctions_each_way():
+    from planner.lane_graph import one_way_aisles
+
+    with pytest.raises(ValueError, match="at least 2 x 2 junctions, got 1 x 3"):
+        one_way_aisles(1, 3)
+
+
+@pytest.mark.parametrize(("n_x", "n_y"), [(2, 2), (3, 2), (2, 5), (6, 9), (7, 4)])
 def test_one_way_loops_are_strongly_connected_with_every_stretch_one_way(n_x, n_y):
     import networkx as nx
 

@@ -357,7 +357,7 @@ ERRORS = [
         "  one_way: circles\n  storage:",
         "layout.one_way",
         "one_way",
-        "must be 'loops' or a list of pairs",
+        "must be 'loops', 'aisles' or a list of pairs",
     ),  # fmt: skip
     (
         "map_server:",
@@ -571,6 +571,28 @@ def test_a_valid_scenario_with_any_one_value_changed_raises_nothing_but_scenario
     path, value
 ):
     _only_scenario_errors(yaml.safe_dump(_mutate(yaml.safe_load(BASE), path, value)))
+
+
+def test_one_way_aisles_make_the_rows_one_way_and_keep_the_columns_two_way(tmp_path):
+    import networkx as nx
+
+    text = BASE.replace("  storage:", "  one_way: aisles\n  storage:", 1)
+    scenario = load_text(text, tmp_path)
+    assert set(scenario.one_way) == {("j0_0", "j1_0"), ("j1_1", "j0_1")}
+    graph = scenario.build_lane_graph(segment_m=2.0).graph
+    assert nx.is_strongly_connected(graph)
+    pos = nx.get_node_attributes(graph, "pos")
+    vertical = [(a, b) for a, b in graph.edges if pos[a][0] == pos[b][0]]
+    assert vertical and all(graph.has_edge(b, a) for a, b in vertical)  # columns two-way
+    assert all(not graph.has_edge(b, a) for a, b in graph.edges if (a, b) not in vertical)
+
+
+def test_an_unknown_one_way_pattern_is_refused_naming_the_patterns(tmp_path):
+    text = BASE.replace("  storage:", "  one_way: aisle\n  storage:", 1)
+    with pytest.raises(
+        ScenarioError, match="must be 'loops', 'aisles' or a list of pairs, got 'aisle'"
+    ):
+        load_text(text, tmp_path)
 
 
 def test_one_way_loops_make_every_lane_one_way_and_keep_every_junction_reachable(tmp_path):
