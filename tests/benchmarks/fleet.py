@@ -1,7 +1,7 @@
 """Fleet throughput benchmark: whole scenario runs, edge-by-edge lanes against reserve-ahead.
 
 Run: ``python tests/benchmarks/fleet.py [SCENARIO.yaml ...] [--all] [--floors] [--policy P]
-[--seed N] [--duration S] [--coordinator NAME] [--json]``
+[--seed N] [--duration S] [--coordinator NAME] [--one-way PATTERN] [--json]``
 
 Each scenario (default: ``scenarios/static_shift.yaml``, ``scenarios/moved_pod.yaml``,
 ``scenarios/busy_shift.yaml``; ``--all``: every ``scenarios/*.yaml`` but ``tiny.yaml``;
@@ -17,6 +17,11 @@ time, the scenario's seed), once per lane coordinator:
   ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.run.runner._coordinator``);
 - ``pibt``: as ``reserve-ahead``, with the scenario's ``coordination.policy`` set to
   ``pibt`` (``planner.policy_pibt``: priority inheritance with backtracking).
+
+``--one-way aisles`` (or ``loops``, ``scenarios.spec.layout.ONE_WAY_PATTERNS``) runs each
+scenario whose file sets no ``layout.one_way`` a second time with that traffic pattern,
+right after it (row ``<name>+aisles``); that row's ``bound`` is the two-way run's, so its
+``of bnd`` counts its trips against what the two-way floor allows.
 
 Only the coordinator differs: both runs use the same drive controller (regulated pure
 pursuit), the same navigator (A* on the shared costmap, line-of-sight shortcuts,
@@ -62,6 +67,7 @@ from dataclasses import dataclass  # noqa: E402
 
 from scenarios.run.record import RunRecord, UnitSample  # noqa: E402
 from scenarios.run.runner import RunOptions, run  # noqa: E402
+from scenarios.spec.layout import ONE_WAY_PATTERNS  # noqa: E402
 from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
 ROOT = HERE.parents[1]
@@ -128,14 +134,32 @@ def stall_fields(prefix: str, stall: Stall | None) -> dict:
     }
 
 
-def row(scenario: Scenario, coordinator: str, record: RunRecord, total_wall: float) -> dict:
-    """One table row (and JSON line) from a run's record."""
+def with_one_way(scenario: Scenario, pattern: str) -> Scenario:
+    """``scenario`` with the ``layout.one_way`` pattern ``pattern`` over its lane grid,
+    named ``<name>+<pattern>``."""
+    layout = scenario.layout
+    pairs = ONE_WAY_PATTERNS[pattern](len(layout.lane_x), len(layout.lane_y))
+    return dataclasses.replace(scenario, name=f"{scenario.name}+{pattern}", one_way=pairs)
+
+
+def row(
+    scenario: Scenario,
+    coordinator: str,
+    record: RunRecord,
+    total_wall: float,
+    two_way: dict | None = None,
+) -> dict:
+    """One table row (and JSON line) from a run's record; ``two_way``: the row of the
+    same floor run two-way, whose bound this run's trips are counted against (a one-way
+    pattern makes trips longer: its own ideal would flatter it)."""
     m = record.metrics
     broken: dict[str, list[tuple[float, float]]] = {}
     for b in scenario.breakdowns():
         broken.setdefault(b.unit_id, []).append((b.at, b.until))
     sim_s, wall_s = float(m["sim_seconds"]), float(m["wall_seconds"])
     bound = trip_bound(scenario, m["units"], sim_s, m["ideal_trip_s"])
+    if two_way is not None:
+        bound = two_way["trip_bound"]
     unit_hours = m["units"] * sim_s / 3600.0
     return {
         "scenario": scenario.name,
@@ -177,7 +201,7 @@ def trip_bound(
 
 
 COLUMNS = (  # (title, key, format)
-    ("scenario", "scenario", "<14"),
+    ("scenario", "scenario", "<20"),
     ("coordinator", "coordinator", "<13"),
     ("trips", "trips", ">5"),
     ("bound", "trip_bound", ">6.1f"),
@@ -260,6 +284,12 @@ def main() -> None:
         action="append",
         help="run only this coordinator (repeatable; default: all)",
     )
+    parser.add_argument(
+        "--one-way",
+        choices=sorted(ONE_WAY_PATTERNS),
+        help="also run each two-way scenario with this layout.one_way pattern, its trips "
+        "against the two-way run's bound (default: only as each file says)",
+    )
     parser.add_argument("--json", action="store_true", help="print every row as a JSON line")
     args = parser.parse_args()
 
@@ -279,6 +309,14 @@ def main() -> None:
             t0 = time.perf_counter()
             record = run(dataclasses.replace(scenario, coordination=policy), options=options)
             rows.append(row(scenario, name, record, time.perf_counter() - t0))
+            print(line(rows[-1]), flush=True)
+            if args.one_way is None or scenario.one_way:
+                continue
+            two_way = rows[-1]
+            patterned = with_one_way(scenario, args.one_way)
+            t0 = time.perf_counter()
+            record = run(dataclasses.replace(patterned, coordination=policy), options=options)
+            rows.append(row(patterned, name, record, time.perf_counter() - t0, two_way))
             print(line(rows[-1]), flush=True)
     if args.json:
         for r in rows:
