@@ -1,0 +1,46 @@
+"""The socket ``fleetmap serve`` listens on, bound before the server starts, so that a
+port in use or an address that is not this machine's is one ``error:`` line naming the
+setting to change (exit 2), not uvicorn's log line and its exit status 3."""
+
+from __future__ import annotations
+
+import errno
+import socket
+
+REASONS = {
+    errno.EADDRINUSE: ("--port", "another program listens there (stop it, or choose another "
+                       "--port; --port 0 picks a free one)"),
+    errno.EADDRNOTAVAIL: ("--host", "not an address of this machine (choose another --host)"),
+    errno.EACCES: ("--port", "permission denied (ports below 1024 need privileges: choose a "
+                   "--port from 1024)"),
+}  # fmt: skip
+"""What each bind failure means, the flag it is about and the fix, by errno."""
+
+
+class ListenError(OSError):
+    """The server cannot listen at ``host``:``port``; the message says why and what to change."""
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host`` (a name, IPv4 or IPv6 address) and ``port`` (0: a
+    free one), address reuse on as uvicorn sets it; ListenError when the bind fails."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host.strip("[]"), port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+    except socket.gaierror as exc:
+        raise ListenError(f"--host {host}: cannot resolve it ({exc.strerror})") from None
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        flag, reason = REASONS.get(
+            exc.errno, ("--port", f"{exc.strerror} (choose another --host or --port)")
+        )
+        shown = f"[{host.strip('[]')}]" if ":" in host else host
+        value = port if flag == "--port" else host
+        raise ListenError(f"{flag} {value}: cannot listen on {shown}:{port}: {reason}") from None
+    sock.set_inheritable(True)
+    return sock
