@@ -572,7 +572,7 @@
         !placed.some((other) => overlaps(box, other)) &&
         !markers.some((m) => m.unit !== mark.unit && overlaps(box, m));
       const box = places.find(fits) || places[0];
-      placed.push({ ...box, unit_id: mark.unit.unit_id, text: mark.text, x: mark.x, y: mark.y, alpha: mark.alpha });
+      placed.push({ ...box, unit_id: mark.unit.unit_id, text: mark.text, x: mark.x, y: mark.y, radius, alpha: mark.alpha });
     }
     return placed;
   }
@@ -607,8 +607,9 @@
     if (label.leader) {
       const lx = Math.min(Math.max(label.x, label.left), label.right); // nearest point of the box
       const ly = label.y < label.top ? label.top : label.bottom;
-      ctx.beginPath();
-      ctx.moveTo(label.x, label.y);
+      const length = Math.hypot(lx - label.x, ly - label.y) || 1;
+      ctx.beginPath(); // from the marker's edge
+      ctx.moveTo(label.x + ((lx - label.x) * label.radius) / length, label.y + ((ly - label.y) * label.radius) / length);
       ctx.lineTo(lx, ly);
       ctx.strokeStyle = "rgba(0, 0, 0, 0.8)";
       ctx.lineWidth = 1.5 * dpr;
