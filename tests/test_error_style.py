@@ -154,3 +154,14 @@ def test_run_against_a_server_with_another_grid_says_both_grids_and_the_settings
         "--server)"
     )
     assert not (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_an_address_not_of_this_machine_names_host():
+    from mapserver.cli.listen import ListenError, listen
+
+    with pytest.raises(ListenError) as refused:
+        listen("192.0.2.1", 8700)  # TEST-NET-1 (RFC 5737): never a local address
+    assert str(refused.value) == (
+        "--host 192.0.2.1: cannot listen on 192.0.2.1:8700: not an address of this machine "
+        "(choose another --host)"
+    )

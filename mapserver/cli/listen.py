@@ -22,24 +22,23 @@ class ListenError(OSError):
 
 
 def listen(host: str, port: int) -> socket.socket:
-    """A TCP socket bound to ``host`` (a name, IPv4 or IPv6 address) and ``port`` (0: a
-    free one), address reuse on as uvicorn sets it; ListenError when the bind fails."""
-    try:
-        family, kind, proto, _, address = socket.getaddrinfo(
-            host.strip("[]"), port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
-        )[0]
-    except socket.gaierror as exc:
-        raise ListenError(f"--host {host}: cannot resolve it ({exc.strerror})") from None
-    sock = socket.socket(family, kind, proto)
+    """A TCP socket bound to ``host`` (a name or IPv4 address; IPv6 when it holds a
+    colon, as uvicorn reads it) and ``port`` (0: a free one), address reuse on as uvicorn
+    sets it; ListenError when the bind fails."""
+    address = host.strip("[]")
+    sock = socket.socket(socket.AF_INET6 if ":" in address else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
-        sock.bind(address)
+        sock.bind((address, port))
     except OSError as exc:
         sock.close()
-        flag, reason = REASONS.get(
-            exc.errno, ("--port", f"{exc.strerror} (choose another --host or --port)")
-        )
-        shown = f"[{host.strip('[]')}]" if ":" in host else host
+        if isinstance(exc, socket.gaierror):
+            flag, reason = "--host", f"{exc.strerror} (choose another --host)"
+        else:
+            flag, reason = REASONS.get(
+                exc.errno, ("--port", f"{exc.strerror} (choose another --host or --port)")
+            )
+        shown = f"[{address}]" if ":" in address else address
         value = port if flag == "--port" else host
         raise ListenError(f"{flag} {value}: cannot listen on {shown}:{port}: {reason}") from None
     sock.set_inheritable(True)
