@@ -11,9 +11,15 @@ from mapserver.api import ingest_budget
 from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, parse_json
 from mapserver.api.guards import media_type
+from mapserver.api.scan_fields import unknown_batch_field, unknown_scan_field
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
 from mapserver.core.scan import Scan, ScanError
-from mapserver.core.scan_binary import CONTENT_TYPE, ScanEncodingError, decode_scans
+from mapserver.core.scan_binary import (
+    CONTENT_TYPE,
+    ScanEncodingError,
+    UnknownFlagError,
+    decode_scans,
+)
 from mapserver.core.text import quote
 from mapserver.service.map_service import MapService
 from mapserver.service.scan_gate import IngestError
@@ -32,13 +38,17 @@ async def _body(request: Request, batch: bool) -> Any:
         return parse_json(raw)
     try:
         scans = decode_scans(raw, batch)
-    except ScanEncodingError as exc:
-        raise HTTPException(400, str(exc)) from None
+    except ScanEncodingError as exc:  # an unknown flag is a field this server does not know
+        raise HTTPException(422 if isinstance(exc, UnknownFlagError) else 400, str(exc)) from None
     return {"scans": scans} if batch else scans[0]
 
 
 def _parse(request: Request, item: Any, prefix: str) -> Scan:
-    """The scan in ``item`` (422 naming ``prefix`` + field), one the token may post (403)."""
+    """The scan in ``item`` (422 naming ``prefix`` + field, or a key that is no field
+    and the nearest one), one the token may post (403)."""
+    unknown = unknown_scan_field(item)
+    if unknown is not None:
+        raise HTTPException(422, f"{prefix}{unknown}")
     try:
         scan = Scan.from_dict(item, max_beams=request.app.state.settings.limits.max_beams)
     except ScanError as exc:
@@ -77,6 +87,9 @@ async def ingest_batch(request: Request) -> dict[str, list[dict[str, int]]]:
     ingest_budget.refuse_token_in_debt(request)
     body = await _body(request, batch=True)
     limits = request.app.state.settings.limits
+    unknown = unknown_batch_field(body)
+    if unknown is not None:
+        raise HTTPException(422, unknown)
     items = body.get("scans") if isinstance(body, dict) else None
     if not isinstance(items, list) or not items:
         raise HTTPException(422, f"scans: must be a non-empty list of scans, got {quote(items)}")

@@ -74,18 +74,24 @@ UnitId = Annotated[
 Reason = Annotated[str, Field(max_length=MAX_REASON_CHARS), _clean_text(MAX_REASON_CHARS)]
 
 
-class PoseIn(BaseModel):
+class _ScanPart(BaseModel):
+    """A part of a scan body: no other keys (``scan_fields`` refuses them, 422)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class PoseIn(_ScanPart):
     x: Number = Field(description="[m] sensor x in the map frame")
     y: Number = Field(description="[m] sensor y in the map frame")
     yaw: Number = Field(ge=-1e6, le=1e6, description="[rad] counter-clockwise from +x")
 
 
-class PoseStdIn(BaseModel):
+class PoseStdIn(_ScanPart):
     xy: Number = Field(0.0, ge=0, le=1e3, description="[m] position standard deviation")
     yaw: Number = Field(0.0, ge=0, le=1e3, description="[rad] heading standard deviation")
 
 
-class ScanIn(BaseModel):
+class ScanIn(_ScanPart):
     """One planar LiDAR scan (docs/http-api.md 2.1); ranges follow REP 117."""
 
     unit_id: UnitId
@@ -103,7 +109,7 @@ class ScanIn(BaseModel):
     )
 
 
-class ScanBatchIn(BaseModel):
+class ScanBatchIn(_ScanPart):
     scans: list[ScanIn] = Field(min_length=1)
 
 

@@ -24,11 +24,32 @@ NEGATIVE_VALUE = re.compile(r"^-\.?\d")
 """What argparse must read as a value, never as an option: ``-`` then a digit or ``.5``."""
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default: `` (default: 0.05)`` after its text, unless
+    the text already says its default in words (``default: sized from the data``), it
+    has none (None: the option is off or derived) or it is an on/off switch's False."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            "default" in text
+            or default is None
+            or default is argparse.SUPPRESS
+            or (default is False and action.nargs == 0)
+            or not action.option_strings
+        ):
+            return action.help
+        return f"{text} (default: %(default)s)"
+
+
 class CommandParser(argparse.ArgumentParser):
-    """An ArgumentParser whose arguments may start with a negative number (``-12,-25``);
-    its subparsers are CommandParsers too (argparse makes them of the parent's type)."""
+    """An ArgumentParser whose arguments may start with a negative number (``-12,-25``)
+    and whose help shows the defaults (``DefaultsHelpFormatter``); its subparsers are
+    CommandParsers too (argparse makes them of the parent's type)."""
 
     def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = NEGATIVE_VALUE
 

@@ -122,7 +122,9 @@ def _hold(data_dir: Path, shared: bool) -> FileLocks:
     server (or, for ``shared=False``, any other journal command) holds it."""
     path = journal_path(data_dir)
     if not path.is_file():
-        raise UsageError(f"{data_dir}: no journal there ({path.name} missing)")
+        raise UsageError(
+            f"{data_dir}: no journal there ({path.name} missing: give a server's --data-dir)"
+        )
     try:
         return FileLocks([path], shared=shared, create=False)
     except LockBusy:

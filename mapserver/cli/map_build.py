@@ -58,7 +58,6 @@ def add_map_parser(subparsers: argparse._SubParsersAction) -> None:
         "+ logodds.npy",
         description="Fuse a recording offline; writes ROS map_server files and log-odds. "
         "Without --width/--height the grid is sized from the data (docs/recordings.md).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     build.add_argument(
         "recording", type=Path, help="ROS 1 or 2 bag, CARMEN log or scan file (docs/recordings.md)"

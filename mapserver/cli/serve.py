@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from mapserver.cli.listen import ListenError, listen
 from mapserver.core.belief import BeliefGrid
 from mapserver.core.scan import Scan
 from mapserver.service.settings import Settings, SettingsError, load_settings
@@ -41,7 +42,11 @@ def add_serve_parsers(subparsers: argparse._SubParsersAction) -> None:
         "source", type=Path, help="server data dir, journal.sqlite3, or a run's folder/replay.mcap"
     )
     replay.add_argument("--until", type=float, help="[s] replay scans with stamp <= this")
-    replay.add_argument("--out", type=Path, default=Path("."), help="output folder (default .)")
+    replay.add_argument(
+        "--out",
+        type=Path,
+        help=f"output folder (default: SOURCE/{REPLAY_OUT}, or beside SOURCE when it is a file)",
+    )
     replay.add_argument("--json", action="store_true", help="print the figures as JSON last")
     replay.set_defaults(handler=run_replay)
 
@@ -61,8 +66,18 @@ def run_serve(args: argparse.Namespace) -> int:
     }
     try:
         settings = load_settings(args.config, overrides)
+        listener = listen(settings.host, settings.port)
+    except SettingsError as exc:
+        for line in exc.lines():
+            print(f"fleetmap serve: error: {line}", file=sys.stderr)
+        return 2
+    except ListenError as exc:
+        print(f"fleetmap serve: error: {exc}", file=sys.stderr)
+        return 2
+    try:
         app = create_app(settings)
-    except (SettingsError, DataDirError, JournalError) as exc:
+    except (DataDirError, JournalError) as exc:
+        listener.close()
         print(f"fleetmap serve: error: {exc}", file=sys.stderr)
         return 2
     # The ingest thread fuses in numba with the GIL released; a short switch interval lets
@@ -78,7 +93,7 @@ def run_serve(args: argparse.Namespace) -> int:
                 port = self.servers[0].sockets[0].getsockname()[1]
                 print(listening_line(settings, port), file=sys.stderr, flush=True)
 
-    AnnouncedServer(uvicorn_config(app, settings)).run()
+    AnnouncedServer(uvicorn_config(app, settings)).run(sockets=[listener])
     return 0
 
 
@@ -141,13 +156,24 @@ def run_replay(args: argparse.Namespace) -> int:
     return write_replayed(belief, scans, args)
 
 
+REPLAY_OUT = "replay-map"
+"""The folder ``replay`` writes into without ``--out``, beside what it replays."""
+
+
+def default_replay_out(source: Path) -> Path:
+    """Where ``replay SOURCE`` writes without ``--out``: ``REPLAY_OUT`` in the folder
+    ``source`` is (a data dir, a run's folder) or holds (a journal, a replay.mcap), never
+    the current folder."""
+    return (source if source.is_dir() else source.parent) / REPLAY_OUT
+
+
 def write_replayed(belief: BeliefGrid, scans: list[Scan], args: argparse.Namespace) -> int:
     """Fuse replayed ``scans`` into ``belief``, write the map files to ``args.out`` and
     report (``args.json``: the figures as JSON); the tail of every ``fleetmap replay``."""
     from mapserver.store.offline import fuse_all, write_map_outputs
 
     stats = fuse_all(belief, scans)
-    yaml_path = write_map_outputs(belief, args.out)
+    yaml_path = write_map_outputs(belief, args.out or default_replay_out(args.source))
     if args.json:
         print(json.dumps(stats.as_dict()))
     else:

@@ -51,6 +51,19 @@ class GridGeometry:
             if not math.isfinite(getattr(self, name)):
                 raise FieldError(name, getattr(self, name), "must be finite")
 
+    def describe(self) -> str:
+        """The grid in words: ``120 x 80 cells of 0.1 m (12 x 8 m) from (0, 0)``."""
+        return (
+            f"{self.width} x {self.height} cells of {self.resolution:g} m "
+            f"({self.width * self.resolution:g} x {self.height * self.resolution:g} m) "
+            f"from ({self.origin_x:g}, {self.origin_y:g})"
+        )
+
+    def differing_fields(self, other: GridGeometry) -> dict[str, float]:
+        """This grid's fields whose value ``other`` does not share, by name."""
+        names = ("width", "height", "resolution", "origin_x", "origin_y")
+        return {n: getattr(self, n) for n in names if getattr(self, n) != getattr(other, n)}
+
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) = (height, width), the numpy shape of a grid array."""

@@ -56,6 +56,11 @@ class ScanEncodingError(FleetmapError, ValueError):
         super().__init__(f"body: {reason} (at byte {offset})")
 
 
+class UnknownFlagError(ScanEncodingError):
+    """A record sets a flag bit this version does not define: it announces a field this
+    server does not know (the binary form of a JSON key that is no field of a scan)."""
+
+
 def encode_scan(scan: Scan) -> bytes:
     """One scan as a binary record (its ranges rounded to float32)."""
     unit_id = scan.unit_id.encode()
@@ -113,7 +118,11 @@ def _record(body: bytes, offset: int, name: str) -> tuple[dict[str, Any], int]:
             offset + 4, f"{name} is format version {version}; this server reads {VERSION}"
         )
     if flags & ~FLAG_POSE_STD:
-        raise ScanEncodingError(offset + 5, f"{name} sets unknown flag bits, got {flags:#04x}")
+        raise UnknownFlagError(
+            offset + 5,
+            f"{name} sets flag bits {flags & ~FLAG_POSE_STD:#04x}, no field of a scan: "
+            f"format version {VERSION} defines bit 0 (pose_std) only",
+        )
     start = offset + HEADER.size
     end = start + id_length + beams * RANGE.itemsize
     if end > len(body):

@@ -24,7 +24,9 @@ A string that is not clean is refused with its field named and its value quoted 
 
 from __future__ import annotations
 
+import difflib
 import reprlib
+from collections.abc import Iterable
 from typing import Any
 
 MAX_ID_CHARS = 64
@@ -49,6 +51,15 @@ def clip(text: str, limit: int = 200) -> str:
     """``text`` cut to at most ``limit`` characters (an ellipsis marks the cut), e.g. an
     exception's message that may carry a value of a request."""
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def name_hint(name: str, names: Iterable[str]) -> str:
+    """What to add after ``NAME: is not a field of X`` for an unknown ``name``: the
+    closest of ``names`` (``; did you mean 'count'?``), else them all (`` (expected one of
+    a, b)``)."""
+    choices = sorted(names)
+    close = difflib.get_close_matches(name, choices, n=1)
+    return f"; did you mean {close[0]!r}?" if close else f" (expected one of {', '.join(choices)})"
 
 
 def text_problem(value: Any, max_chars: int = MAX_ID_CHARS) -> str | None:

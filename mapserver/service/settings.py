@@ -31,6 +31,7 @@ import ipaddress
 import logging
 import math
 import os
+import re
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -54,6 +55,7 @@ from pydantic_settings import (
     PydanticBaseSettingsSource,
     SettingsConfigDict,
 )
+from pydantic_settings import SettingsError as EnvironmentValueError
 
 from mapserver.core.belief import BeliefGrid
 from mapserver.core.errors import FleetmapError, dotted
@@ -104,10 +106,16 @@ class SettingsError(FleetmapError, ValueError):
         fields: list[tuple[str, str]] | None = None,
     ) -> None:
         self.problems = problems
+        self.source = source
         self.fields = fields if fields is not None else []
         where = f" ({source})" if source else ""
         lines = "\n".join(f"  {problem}" for problem in problems)
         super().__init__(f"invalid fleetmap settings{where}:\n{lines}")
+
+    def lines(self) -> list[str]:
+        """One line per problem, each naming the config file when there is one (what a
+        command prints after its ``error:``)."""
+        return [f"{self.source}: {p}" if self.source else p for p in self.problems]
 
 
 class Role(StrEnum):
@@ -623,14 +631,58 @@ def load_settings(
             return Settings(**values)
         return Settings.from_yaml(config_path, **values)
     except ValidationError as exc:
-        fields = located_errors(exc)
+        fields = [(f, m + _variable_note(f, values)) for f, m in located_errors(exc)]
         raise SettingsError([f"{f}: {m}" for f, m in fields], source, fields) from None
+    except EnvironmentValueError as exc:  # a variable of a list or section that is no JSON
+        raise SettingsError([_unreadable_variable(exc)], source) from None
 
 
 def located_errors(exc: ValidationError) -> list[tuple[str, str]]:
     """(field, ``problem, got value``) per pydantic error (token secrets hidden)."""
     found = problems(exc, "settings", hidden=lambda loc: bool(loc) and loc[-1] == "token")
     return [(dotted(p.loc, "settings"), p.detail()) for p in found]
+
+
+def variable_of(field: str, overrides: Mapping[str, Any]) -> str | None:
+    """The ``FLEETMAP_*`` variable (as the environment spells it) that gave ``field``
+    (dotted, ``sensor_model.p_hit``, ``tokens[0].role``), or the section holding it
+    (``FLEETMAP_SENSOR_MODEL`` as JSON); None when ``overrides`` (nested: the flags) gave
+    it, which beat the variables, or no variable names it."""
+    parts = [p for p in re.split(r"[.\[\]]", field) if p and not p.isdigit()]
+    given: Any = overrides
+    for part in parts:
+        if not isinstance(given, Mapping) or part not in given:
+            break
+        given = given[part]
+    else:
+        return None
+    variables = {name.upper(): name for name in os.environ}
+    for n in range(len(parts), 0, -1):
+        name = variables.get("FLEETMAP_" + "__".join(parts[:n]).upper())
+        if name is not None:
+            return name
+    return None
+
+
+def _variable_note(field: str, overrides: Mapping[str, Any]) -> str:
+    """`` (set by FLEETMAP_X: ...)`` when a variable gave ``field``'s value, else ``""``."""
+    name = variable_of(field, overrides)
+    return "" if name is None else f" (set by the environment variable {name}: correct or unset it)"
+
+
+def _unreadable_variable(exc: EnvironmentValueError) -> str:
+    """The problem of a ``FLEETMAP_*`` variable pydantic-settings could not decode as JSON
+    (a list or a section), naming it and what it must hold."""
+    found = re.search(r'field "(\w+)"', str(exc))
+    field = found.group(1) if found else "?"
+    prefix = f"FLEETMAP_{field}".upper()
+    names = sorted(n for n in os.environ if n.upper().startswith(prefix)) or [prefix]
+    cause = exc.__cause__ or exc
+    return (
+        f"{', '.join(names)}: not valid JSON ({cause}) ({field} holds a list or mapping: "
+        f'give it as JSON, e.g. FLEETMAP_TOKENS=\'[{{"token": "s3cret", "role": '
+        f'"admin"}}]\', or unset it)'
+    )
 
 
 def is_loopback(host: str) -> bool:

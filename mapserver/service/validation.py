@@ -16,7 +16,6 @@ models whose errors read ``field: reason, got value``.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import sys
 import typing
 from collections.abc import Callable
@@ -37,6 +36,7 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from mapserver.core.errors import FieldError, dotted
+from mapserver.core.text import name_hint
 
 Loc = tuple[str | int, ...]
 """Where a value sits: mapping keys and list indices from the top."""
@@ -134,12 +134,10 @@ class _Unknown:
 
     def reason(self, key: Any, where: str) -> str:
         """``is not a field of <where>``, with the closest field or every one."""
-        choices = ", ".join(sorted(self.names))
         if not isinstance(key, str):
+            choices = ", ".join(sorted(self.names))
             return f"has key {key!r}, not a field name (expected {choices})"
-        close = difflib.get_close_matches(key, self.names, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else f" (expected one of {choices})"
-        return f"is not a field of {where}{hint}"
+        return f"is not a field of {where}{name_hint(key, self.names)}"
 
 
 def mark_unknown_keys(model: type[BaseModel], data: Any) -> Any:

@@ -243,7 +243,7 @@ def _occupancy_from_pixels(
 
 def _load_yaml(path: Path) -> dict[str, object]:
     if not path.is_file():
-        raise MapFileError(f"map YAML {path} does not exist")
+        raise MapFileError(f"map YAML {path} does not exist (give a map.yaml, as map build writes)")
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as err:

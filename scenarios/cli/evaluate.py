@@ -67,7 +67,6 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> None:
         "structure kept, ghost cell-seconds, unknown share of the floor seen, occupied "
         "cells, fusion speed (docs/evaluate.md). Writes report.md, report.csv and "
         "evaluate.png.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
         "recording", type=Path, help="ROS 1 or 2 bag, CARMEN log or scan file (docs/recordings.md)"

@@ -31,7 +31,7 @@ def add_plan_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("map", type=Path, help="ROS map YAML")
     parser.add_argument("--start", type=xy_pair, required=True, metavar="X,Y", help="[m]")
     parser.add_argument("--goal", type=xy_pair, required=True, metavar="X,Y", help="[m]")
-    parser.add_argument("--algorithm", choices=ALGORITHMS, default="astar")
+    parser.add_argument("--algorithm", choices=ALGORITHMS, default="astar", help="search algorithm")
     parser.add_argument(
         "--no-unknown", action="store_true", help="never plan through unknown cells"
     )

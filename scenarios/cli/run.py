@@ -27,8 +27,9 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
         "to --out.",
     )
     run.add_argument("scenario", type=Path, help="scenario YAML (see docs/scenarios.md)")
-    run.add_argument("--policy", choices=[p.value for p in Policy], help="override the map policy")
-    run.add_argument("--seed", type=int, help="override the scenario's seed")
+    run.add_argument("--policy", choices=[p.value for p in Policy],
+                     help="override the map policy (default: the scenario's)")  # fmt: skip
+    run.add_argument("--seed", type=int, help="override the scenario's seed (default: its own)")
     run.add_argument("--server", help="URL of a running map server (default: start one)")
     run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
     run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
@@ -48,19 +49,21 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
 def run_one(args: argparse.Namespace) -> int:
     from scenarios.run.execute import ScenarioError, execute
 
+    progress = _progress_bar(args.scenario.stem)
     try:
         live = _live(_foxglove_port(args))
         try:
             metrics = execute(
                 args.scenario, args.policy, args.seed, args.server, args.out,
-                progress=_progress_bar(args.scenario.stem), announce=_say,
-                observers=[] if live is None else [live],
+                progress=progress, announce=_say, observers=[] if live is None else [live],
             )  # fmt: skip
         finally:
             if live is not None:
                 live.stop()
     except (ScenarioError, ValueError, OSError, FleetmapError) as exc:
-        print(f"\nfleetmap run: error: {exc}", file=sys.stderr)
+        if progress.line_open:  # the error starts a line of its own, never a blank one
+            print(file=sys.stderr)
+        print(f"fleetmap run: error: {exc}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(metrics))
@@ -128,19 +131,11 @@ def _cell(value: object, fixed) -> str:
 
 
 def _progress_bar(label: str):
-    """A one-line progress bar on stderr when it is a terminal, else a line now and then
-    (``SimProgress``)."""
-    if not sys.stderr.isatty():
-        from scenarios.sweep.progress import SimProgress
+    """A one-line progress bar on stderr when it is a terminal (``TerminalBar``), else a
+    line now and then (``SimProgress``)."""
+    from scenarios.sweep.progress import SimProgress, TerminalBar
 
+    if not sys.stderr.isatty():
         return SimProgress(label)
     width = max(10, min(40, os.get_terminal_size(sys.stderr.fileno()).columns - 40))
-
-    def show(now: float, total: float) -> None:
-        done = min(1.0, now / total) if total > 0 else 1.0
-        bar = "#" * int(done * width)
-        print(f"\r{label} [{bar:<{width}}] {now:6.1f}/{total:.0f} s", end="", file=sys.stderr)
-        if done >= 1.0:
-            print(file=sys.stderr)
-
-    return show
+    return TerminalBar(label, width)

@@ -23,6 +23,7 @@ from mapserver.core.belief import BeliefGrid
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import Policy
 from mapserver.service.replay import ReplayError, belief_for
+from mapserver.store.journal import JOURNAL_FILENAME
 from scenarios.replay.mcap import (
     REPLAY_FILENAME,
     ReplayFileError,
@@ -41,8 +42,32 @@ def replay_file_of(source: Path) -> Path | None:
     return None
 
 
+SOURCES = (
+    "give a server's --data-dir or its journal.sqlite3, or a run's --out folder or its replay.mcap"
+)
+"""What ``fleetmap replay`` reads, as the fix of an error about its source."""
+
+
+def source_problem(source: Path) -> str | None:
+    """Why ``source`` is nothing ``replay`` reads (missing, or a folder holding neither a
+    journal nor a run's replay); None when it may be one."""
+    if not source.exists():
+        return f"{source}: no such file or folder ({SOURCES})"
+    if source.is_dir() and not (source / JOURNAL_FILENAME).is_file():
+        if not (source / REPLAY_FILENAME).is_file():
+            return (
+                f"{source}: holds neither a server's {JOURNAL_FILENAME} nor a run's "
+                f"{REPLAY_FILENAME} ({SOURCES})"
+            )
+    return None
+
+
 def run_replay(args: argparse.Namespace) -> int:
     """``fleetmap replay`` for runs and journals alike."""
+    problem = source_problem(args.source)
+    if problem is not None:
+        print(f"fleetmap replay: error: {problem}", file=sys.stderr)
+        return 2
     replay = replay_file_of(args.source)
     if replay is None:
         return run_journal_replay(args)

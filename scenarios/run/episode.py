@@ -38,6 +38,7 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, StepResult
 from fleet.world import World
 from mapserver.client import Grid, MapClient
+from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 from planner.coordinator import LaneCoordinator
 from planner.freeze import TruthLanes, classify
@@ -141,12 +142,10 @@ class Episode:
         self.geometry = setup.geometry()
         meta = client.map_meta()
         if meta.geometry != self.geometry:
-            raise ValueError(
-                f"server: its grid {meta.geometry} is not the scenario's {self.geometry}"
-            )
+            raise ValueError(grid_mismatch(meta.geometry, self.geometry))
         if meta.stamp is not None:
             raise ValueError(
-                f"server: its map already holds scans up to stamp {meta.stamp:g} s, and a "
+                f"--server: its map already holds scans up to stamp {meta.stamp:g} s, and a "
                 "run's units stamp their scans in sim time from 0 s: run against a server "
                 "with an empty map (a new data dir; with docker compose, `down -v` first)"
             )
@@ -448,3 +447,19 @@ def _rerouter(coordinator: LaneCoordinator, graph: LaneGraph):
         return [graph.position(node) for node in status.route[1:2]] or None
 
     return reroute
+
+
+def grid_mismatch(server: GridGeometry, scenario: GridGeometry) -> str:
+    """Why a run cannot use a server with grid ``server``: both grids in words and the
+    server settings that would give the scenario's (``grid.*``, or the same as
+    ``FLEETMAP_GRID__*`` variables)."""
+    wanted = scenario.differing_fields(server)
+    config = ", ".join(f"grid.{name}: {value:g}" for name, value in wanted.items())
+    variables = " ".join(
+        f"FLEETMAP_GRID__{name.upper()}={value:g}" for name, value in wanted.items()
+    )
+    return (
+        f"--server: its grid is {server.describe()}, the scenario's {scenario.describe()} "
+        f"(start the server with {config} in its --config, or {variables}, and no --map; "
+        "or run without --server)"
+    )

@@ -448,13 +448,16 @@ class StandardObservers:
 
 
 class ProgressReport(_Observer):
-    """Calls ``progress(now, duration)`` [s] after every step (a progress bar)."""
+    """Calls ``progress(now, duration)`` [s] after every step (a progress bar); after the
+    last step ``now`` is ``duration`` exactly, so the last line (``180/180``) is always
+    drawn: sim time summed in steps of 0.1 s ends a hair short of it (179.99999999997)."""
 
     def __init__(self, progress) -> None:
         self.progress = progress
 
     def observe(self, episode: Episode) -> None:
-        self.progress(episode.report.now, episode.setup.duration)
+        duration = episode.setup.duration
+        self.progress(duration if episode.done else episode.report.now, duration)
 
 
 def _scan_sample(scan) -> ScanSample:

@@ -4,7 +4,8 @@
   inscribed, black lethal, grey unknown) with every freeze where the unit stood (red X
   for its phantom seconds, blue circle for its true-block seconds, each sized by those
   seconds: a freeze split in time has both), every world event (green triangle,
-  labelled E1, E2, ... in time order) and every collision incident where the unit first
+  labelled E1, E2, ... in time order; a moved object also where it stood, a hollow
+  triangle with a dashed arrow to its new place) and every collision incident where the unit first
   touched (orange star: the fleet's, yellow diamond: the scenario's; ``fleet.sim``,
   ``scenarios.score.incidents``).
 - Top right, a timeline per unit [s]: each freeze's segments as bars (red phantom, blue
@@ -44,7 +45,7 @@ from matplotlib.patches import Patch
 from mapserver.core.costvalues import FREE, INSCRIBED, LETHAL, MAX_GRADED, UNKNOWN
 from mapserver.store.atomic import atomic_output
 from planner.freeze import PHANTOM, TRUE_BLOCK
-from scenarios.run.record import EventRecord, RunRecord
+from scenarios.run.record import EventRecord, ObjectState, RunRecord
 from scenarios.score.metric_registry import View, shown_in
 from scenarios.score.report_map_truth import draw_map_truth
 
@@ -197,6 +198,37 @@ def _draw_map(ax: Axes, record: RunRecord) -> None:
         )
     for cause, group in _collisions_by_cause(record):
         _scatter_collisions(ax, cause, [c.x for c in group], [c.y for c in group])
+    _draw_moves(ax, record, events)
+
+
+def _draw_moves(ax: Axes, record: RunRecord, events: list[tuple[str, EventRecord]]) -> None:
+    """Where each moved object stood before its move: a hollow event triangle labelled
+    ``E1 pod-9 stood here``, and a dashed arrow from there to the event's triangle at its
+    new place (none for a move whose object the run did not record before it)."""
+    for label, event in events:
+        before = _place_before(record, event) if event.kind == "move" else None
+        if before is None:
+            continue
+        ax.annotate("", xy=(event.x, event.y), xytext=(before.x, before.y), zorder=3,
+                    arrowprops={"arrowstyle": "->", "color": EVENT_COLOR, "linestyle": "--",
+                                "linewidth": 1.4, "shrinkA": 6, "shrinkB": 6})  # fmt: skip
+        ax.scatter([before.x], [before.y], s=90, marker="^", facecolors="none",
+                   edgecolors=EVENT_COLOR, linewidths=1.6, zorder=3)  # fmt: skip
+        ax.annotate(f"{label} {event.object_id} stood here", (before.x, before.y),
+                    xytext=(6, -14), textcoords="offset points", fontsize=8, zorder=5,
+                    bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": EVENT_COLOR,
+                          "alpha": 0.85, "linestyle": "--"})  # fmt: skip
+
+
+def _place_before(record: RunRecord, event: EventRecord) -> ObjectState | None:
+    """The ``ObjectState`` of ``event``'s object in the last objects sample before the
+    event (None when no sample holds it)."""
+    earlier = [s for s in record.objects if s.stamp < event.stamp - 1e-9]
+    for sample in sorted(earlier, key=lambda s: s.stamp, reverse=True):
+        for state in sample.objects:
+            if state.object_id == event.object_id:
+                return state
+    return None
 
 
 def _collisions_by_cause(record: RunRecord) -> list[tuple[str, list]]:

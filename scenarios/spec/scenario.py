@@ -286,7 +286,9 @@ def load_scenario(path: str | Path, overrides: Mapping[str, Any] | None = None) 
     try:
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(source, None, "scenario", f"cannot read the file ({exc})") from None
+        fix = " (give a scenario YAML: scenarios/*.yaml, docs/scenarios.md)"
+        fix = fix if isinstance(exc, FileNotFoundError) else f" ({exc})"
+        raise ScenarioError(source, None, "scenario", f"cannot read the file{fix}") from None
     return parse_scenario(text, source, overrides, default_name=Path(path).stem)
 
 

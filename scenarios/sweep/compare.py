@@ -65,7 +65,9 @@ def parse_policies(text: str) -> tuple[str, ...]:
             policy = Policy.parse(name).value
         except (ValueError, TypeError, AttributeError):
             choices = ", ".join(p.value for p in Policy)
-            raise ValueError(f"--policies: {name!r} is not one of {choices}") from None
+            raise ValueError(
+                f"--policies: {name!r} is not a policy (choose from {choices})"
+            ) from None
         if policy in out:
             raise ValueError(f"--policies: {name!r} is listed twice")
         out.append(policy)
@@ -75,17 +77,19 @@ def parse_policies(text: str) -> tuple[str, ...]:
 def run_compare(args: argparse.Namespace) -> int:
     """The ``compare`` handler (module docstring for the exit status)."""
     from mapserver.store.atomic import atomic_output
+    from scenarios.spec.scenario import load_scenario
     from scenarios.sweep.compare_table import compare_markdown
     from scenarios.sweep.parallel import run_sweep
     from scenarios.sweep.progress import RunProgress
     from scenarios.sweep.results import write_csv
-    from scenarios.sweep.sweep_file import ScenarioError, Sweep, check_sweep, expand
+    from scenarios.sweep.sweep_file import ScenarioError, Sweep, expand
 
     try:
         policies = parse_policies(args.policies)
         paths = _scenario_paths(args.scenarios)
+        for name in args.scenarios:  # its own error names the file, line and field
+            load_scenario(name)
         sweep = Sweep(paths, policies, tuple(range(args.seeds)), source="fleetmap compare")
-        check_sweep(sweep)
     except (ScenarioError, ValueError) as exc:
         print(f"fleetmap compare: error: {exc}", file=sys.stderr)
         return 2
@@ -120,7 +124,9 @@ def _scenario_paths(names: list[Path]) -> tuple[Path, ...]:
     for name in names:
         path = Path(name).resolve()
         if not path.is_file():
-            raise ValueError(f"{name}: no such scenario file")
+            raise ValueError(
+                f"{name}: no such scenario file (give a scenario YAML: scenarios/*.yaml)"
+            )
         if any(p.stem == path.stem for p in paths):
             raise ValueError(f"{name}: another scenario has the file name {path.stem!r}")
         paths.append(path)

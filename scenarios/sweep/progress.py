@@ -70,7 +70,10 @@ class RunProgress:
 class SimProgress:
     """A ``(now, total)`` progress callback for one run that prints ``<label>: 60/180 s
     simulated, 20 s`` (sim seconds, then wall time) at most every ``every_s`` [s] of wall
-    time, and once at the end; for a stream that is not a terminal."""
+    time, and once at the end (``now >= total``); for a stream that is not a terminal.
+    Its lines are whole: ``line_open`` is always False."""
+
+    line_open = False
 
     def __init__(
         self,
@@ -92,3 +95,26 @@ class SimProgress:
                   f"{elapsed(wall - self.start)}", file=self.stream or sys.stderr,
                   flush=True)  # fmt: skip
             self.last_line = wall
+
+
+class TerminalBar:
+    """A ``(now, total)`` progress callback drawing ``<label> [####   ]  60.0/180 s`` in
+    place on a terminal ``stream`` (default stderr), ``width`` characters of bar; the line
+    ends at ``now >= total``. ``line_open``: a bar is drawn and its line not ended (what
+    prints next must start a line first)."""
+
+    def __init__(self, label: str, width: int, stream: TextIO | None = None) -> None:
+        self.label = label
+        self.width = width
+        self.stream = stream
+        self.line_open = False
+
+    def __call__(self, now: float, total: float) -> None:
+        stream = self.stream or sys.stderr
+        done = min(1.0, now / total) if total > 0 else 1.0
+        bar = "#" * int(done * self.width)
+        print(f"\r{self.label} [{bar:<{self.width}}] {now:6.1f}/{total:.0f} s", end="",
+              file=stream, flush=True)  # fmt: skip
+        self.line_open = done < 1.0
+        if not self.line_open:
+            print(file=stream, flush=True)

@@ -157,7 +157,12 @@ def load_sweep(path: str | Path, check_scenarios: bool = True) -> Sweep:
     try:
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(source, None, "sweep", f"cannot read the file ({exc})") from None
+        fix = (
+            " (give a sweep YAML: docs/scenarios.md)"
+            if isinstance(exc, FileNotFoundError)
+            else f" ({exc})"
+        )
+        raise ScenarioError(source, None, "sweep", f"cannot read the file{fix}") from None
     sweep = parse_sweep(text, source, base=Path(path).resolve().parent)
     if check_scenarios:
         check_sweep(sweep)

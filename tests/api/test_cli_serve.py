@@ -59,11 +59,20 @@ def test_replay_rebuilds_the_servers_map_from_its_journal(tmp_path, capsys):
     assert main(["replay", str(data / "journal.sqlite3"), "--until", "1.5",
                  "--out", str(tmp_path / "early"), "--json"]) == 0  # fmt: skip
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["scans"] == 2
+    here = set(tmp_path.iterdir())
+    assert main(["replay", str(data / "journal.sqlite3")]) == 0  # no --out: beside it
+    said = capsys.readouterr().out.splitlines()[-1]
+    assert (
+        said == f"replayed 5 scans of {data / 'journal.sqlite3'}; wrote {data}/replay-map/map.yaml"
+    )
+    assert np.array_equal(np.load(data / "replay-map" / "logodds.npy"), logodds)
+    assert set(tmp_path.iterdir()) == here  # nothing in the working folder's place
 
 
 def test_replay_of_something_else_is_a_clear_error(tmp_path, capsys):
     assert main(["replay", str(tmp_path)]) == 2
-    assert "not a map server's settings" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "holds neither a server's journal.sqlite3 nor a run's replay.mcap" in err
 
 
 def serve_until_listening(tmp_path, *flags: str) -> tuple[subprocess.Popen, str]:

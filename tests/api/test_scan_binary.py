@@ -127,7 +127,7 @@ def test_arbitrary_bytes_decode_or_raise_an_encoding_error_only(body, batch):
             r"the scan does not start with b'FMSC', got b'XXXX' \(at byte 0\)",
         ),
         (lambda b: b[:4] + b"\x02" + b[5:], "format version 2; this server reads 1"),
-        (lambda b: b[:5] + b"\x06" + b[6:], "unknown flag bits, got 0x06"),
+        (lambda b: b[:5] + b"\x06" + b[6:], "sets flag bits 0x06, no field of a scan"),
         (lambda b: b + b"\x00" * 3, "3 bytes follow the last scan record, expected none"),
         (lambda b: b[:92] + b"\xff\xfe" + b[94:], "unit_id is not UTF-8"),
     ],

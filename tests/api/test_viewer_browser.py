@@ -155,12 +155,14 @@ LEGEND_STATES = """[...document.querySelectorAll('#legend li.state')]
     .map(li => [li.dataset.state, li.textContent])"""
 
 
-def test_units_are_listed_in_natural_order_with_their_state_in_words_look_and_legend(page, server):
-    states = [
-        UnitState.of(uid, 5.0, Pose2D(x, y, 0.0), activity=activity)
-        for uid, activity, (x, y) in STATE_UNITS
-    ]
+def publish(server, stamp, placed) -> None:
+    """Post the states of ``placed`` units, (unit, activity, (x, y) [m]), at ``stamp``."""
+    states = [UnitState.of(u, stamp, Pose2D(x, y, 0.0), activity=a) for u, a, (x, y) in placed]
     MapClient(server[1], token=UNIT).publish_units(states)
+
+
+def test_units_are_listed_in_natural_order_with_their_state_in_words_look_and_legend(page, server):
+    publish(server, 5.0, STATE_UNITS)
     page.wait_for("document.querySelectorAll('#units li').length === 7")
     assert page.evaluate(LIST_UNITS) == [
         ["u1", "moving"],  # from the test before, at (3.05, 15.05)
@@ -273,3 +275,54 @@ def test_the_page_says_when_its_server_is_gone_and_resumes_when_it_is_back(page,
                 process.stop()
         page.open(f"{server[0].url}/#token={READER}")
         page.evaluate("fleetmapViewer.ready.then(() => true)")
+
+
+CLUSTER = [  # (unit, activity, where [m]): five units 0.5 m apart, long labels among them
+    ("p1", "moving", (22.05, 12.05)),
+    ("p10", "broken_down", (22.55, 12.05)),  # its label used to cover p1
+    ("p2", "waiting", (22.05, 12.55)),
+    ("p11", "idle", (22.55, 12.55)),
+    ("p3", None, (23.05, 12.05)),
+]
+WHITE_IN_BOX = """(box => {
+    const c = document.querySelector('#map');
+    const w = Math.floor(box.right - box.left), h = Math.floor(box.bottom - box.top);
+    const img = c.getContext('2d').getImageData(Math.ceil(box.left), Math.ceil(box.top), w, h);
+    const d = img.data;
+    let white = 0;
+    for (let i = 0; i < d.length; i += 4) white += d[i] > 200 && d[i + 1] > 200 && d[i + 2] > 200;
+    return white;
+})"""
+
+
+def test_labels_of_units_half_a_metre_apart_do_not_overlap_labels_or_markers(page, server):
+    publish(server, 6.0, CLUSTER)
+    page.wait_for("fleetmapViewer.labels.some(l => l.unit_id === 'p3')")
+    labels = {label["unit_id"]: label for label in page.evaluate("fleetmapViewer.labels")}
+    reach = page.evaluate("fleetmapViewer.markerReach")
+    width, height = page.evaluate("[document.querySelector('#map').width, "
+                                  "document.querySelector('#map').height]")  # fmt: skip
+    cluster = [labels[uid] for uid, _, _ in CLUSTER]
+    spacing = abs(cluster[1]["x"] - cluster[0]["x"])  # 0.5 m on the canvas [px]
+    assert spacing < 2 * reach  # close enough that their markers' surroundings overlap
+    for a in labels.values():
+        assert 0 <= a["left"] and a["right"] <= width and 0 <= a["top"] and a["bottom"] <= height
+        for b in labels.values():
+            if a is not b:
+                assert not boxes_overlap(a, b), (a, b)
+                marker = {"left": b["x"] - reach, "right": b["x"] + reach,
+                          "top": b["y"] - reach, "bottom": b["y"] + reach}  # fmt: skip
+                assert not boxes_overlap(a, marker), (a["unit_id"], "covers", b["unit_id"])
+        assert page.evaluate(f"{WHITE_IN_BOX}({json.dumps(a)})") >= 8, a  # its text is there
+    assert any(label["leader"] for label in cluster)  # the crowded ones moved, tied by a line
+    assert not labels["p1"]["leader"]  # the first in natural order sits beside its marker
+    assert page.console_errors() == []
+
+
+def boxes_overlap(a, b) -> bool:
+    return (
+        a["left"] < b["right"]
+        and b["left"] < a["right"]
+        and a["top"] < b["bottom"]
+        and b["top"] < a["bottom"]
+    )

@@ -36,3 +36,24 @@ def test_plan_help_as_printed_describes_the_command_plainly():
     assert done.stdout.startswith("usage: fleetmap plan [-h] --start X,Y --goal X,Y")
     assert "Plan a path on a saved map (a ROS map YAML)" in done.stdout
     assert "`" not in done.stdout
+
+
+def test_every_option_with_a_default_shows_it_in_help():
+    """An option that has a default (not None, not an off switch's False) says it: the
+    formatter's ``(default: X)`` or the help's own words (``default: sized from the data``)."""
+    checked = 0
+    for words, parser in commands(build_parser()):
+        formatter = parser._get_formatter()
+        for action in parser._actions:
+            default = action.default
+            if not action.option_strings or action.help == argparse.SUPPRESS:
+                continue
+            if default is None or default is argparse.SUPPRESS or default is False:
+                continue
+            shown = formatter._expand_help(action) if action.help else ""
+            assert "default" in shown, (words, action.option_strings, shown)
+            checked += 1
+    assert checked > 60  # map build alone has 30 such flags
+    build = dict(commands(build_parser()))[("map", "build")].format_help()
+    assert "(default: 0.05)" in " ".join(build.split())  # --resolution
+    assert "(default: None)" not in " ".join(build.split())

@@ -12,7 +12,7 @@ import pytest
 from scenario_helpers import tiny5
 
 from scenarios.sweep.parallel import RunResult
-from scenarios.sweep.progress import RunProgress, SimProgress, elapsed
+from scenarios.sweep.progress import RunProgress, SimProgress, TerminalBar, elapsed
 from scenarios.sweep.sweep_file import SweepRun
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -105,3 +105,33 @@ def test_run_into_a_pipe_says_how_far_it_got(tmp_path):
     said = [x for x in done.stderr.splitlines() if x.startswith("tiny5: ")]
     assert said and re.fullmatch(r"tiny5: 4/4 s simulated, \d+( m \d\d)? s", said[-1]), said
     assert done.stdout.splitlines()[-1] == f"outputs in {tmp_path / 'run'}"
+
+
+def test_the_last_step_reports_the_whole_duration_so_the_last_line_is_always_printed():
+    """Sim time summed in 0.1 s steps ends a hair short of 180 s; the last progress call
+    still says 180/180 (moved_pod printed no last line before)."""
+    from types import SimpleNamespace
+
+    from scenarios.run.observers import ProgressReport
+
+    clock, out = Clock(), io.StringIO()
+    report = ProgressReport(SimProgress("moved_pod", out, every_s=10.0, clock=clock))
+    now = 0.0
+    for _ in range(1800):
+        now += 0.1
+        clock.now += 0.001  # far less than every_s: only the last line is due
+        done = now >= 180.0 - 1e-9  # Episode.done's tolerance
+        report.observe(SimpleNamespace(done=done, report=SimpleNamespace(now=now),
+                                       setup=SimpleNamespace(duration=180.0)))  # fmt: skip
+    assert now < 180.0  # 179.99999999997: the sum never reaches it
+    assert out.getvalue().splitlines() == ["moved_pod: 180/180 s simulated, 1 s"]
+
+
+def test_a_terminal_bar_ends_its_line_at_the_end_and_says_when_one_is_open():
+    out = io.StringIO()
+    bar = TerminalBar("tiny", 10, out)
+    assert not bar.line_open
+    bar(5.0, 20.0)
+    assert bar.line_open and out.getvalue() == "\rtiny [##        ]    5.0/20 s"
+    bar(20.0, 20.0)
+    assert not bar.line_open and out.getvalue().endswith("\rtiny [##########]   20.0/20 s\n")

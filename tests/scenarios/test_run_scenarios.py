@@ -85,7 +85,7 @@ def test_a_server_whose_map_holds_scans_is_refused_before_anything_is_sent(tmp_p
             assert main(["run", TINY, "--out", str(out), "--server", server.url]) == 2
             assert client.map_meta().version == before
     assert capsys.readouterr().err.splitlines()[-1] == (
-        "fleetmap run: error: server: its map already holds scans up to stamp 12.5 s, and a "
+        "fleetmap run: error: --server: its map already holds scans up to stamp 12.5 s, and a "
         "run's units stamp their scans in sim time from 0 s: run against a server with an "
         "empty map (a new data dir; with docker compose, `down -v` first)"
     )

@@ -231,9 +231,14 @@ def test_unknown_names_get_the_closest_field_and_types_read_as_one_sentence() ->
     ]
 
 
-def test_bad_environment_value_names_the_field(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_bad_environment_value_names_the_field_and_the_variable(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     monkeypatch.setenv("FLEETMAP_SENSOR_MODEL__P_MISS", "0.6")
-    assert problems() == ["sensor_model.p_miss: must be less than the prior (0.5), got 0.6"]
+    assert problems() == [
+        "sensor_model.p_miss: must be less than the prior (0.5), got 0.6 (set by the "
+        "environment variable FLEETMAP_SENSOR_MODEL__P_MISS: correct or unset it)"
+    ]
 
 
 def test_missing_map_yaml_is_a_clear_error(tmp_path: Path) -> None:

@@ -29,6 +29,8 @@
   const GONE_AFTER_MS = 3000; // failing this long: the server is not answering [ms]
   const GRID_REFRESH_MS = 1000; // occupancy / age views are read whole at most this often [ms]
   const STALE_UNIT_S = 10; // a unit state this much older than the map's stamp is faded [s]
+  const LABEL_FONT_PX = 12; // unit labels' font size [CSS px]
+  const LABEL_ROWS = 4; // rows above and below a marker a crowded label may move to
   const TOKEN_KEY = "fleetmap.token";
   const BACKGROUND = "#1b1d23";
   const COLOURS = { unit: [31, 111, 235], path: [10, 165, 201], frozen: [229, 72, 77] };
@@ -178,6 +180,8 @@
   const gridReadAt = { occupancy: -Infinity, age: -Infinity }; // performance.now() [ms]
   const stats = { fullReads: 0, updateReads: 0, patchesApplied: 0, gridReads: 0 };
   let units = [];
+  let labels = []; // the unit labels as last placed: boxes [canvas px] (placeLabels)
+  let markerReach = 0; // half the size [canvas px] labels keep clear of around a marker
   let view = "costmap";
   let palettes = null; // {cost: Uint8Array(768), occupancy: Uint8Array(768)}
   let ageLut = null; // Uint8Array(768): 256 steps from fresh to old
@@ -519,7 +523,8 @@
     const dpr = window.devicePixelRatio || 1;
     const footprint = map.meta.inflation.inscribed_radius / map.meta.resolution; // [cells]
     const radius = Math.max(6 * dpr, footprint * camera.scale);
-    ctx.font = `${12 * dpr}px system-ui, "DejaVu Sans", sans-serif`;
+    ctx.font = `${LABEL_FONT_PX * dpr}px system-ui, "DejaVu Sans", sans-serif`;
+    const marks = [];
     for (const unit of units) {
       ctx.globalAlpha = isStale(unit) ? 0.45 : 1;
       if (unit.path.length > 1) {
@@ -541,17 +546,85 @@
       const [x, y] = worldToCanvas(unit.pose.x, unit.pose.y);
       drawMarker(ctx, lookOf(unit), x, y, radius, unit.pose.yaw, dpr);
       const state = stateOf(unit);
-      const label = state === null || state === "moving" ? unit.unit_id : `${unit.unit_id} (${STATES[state].words})`;
-      const room = canvas.width - (x + radius + 5 * dpr) > ctx.measureText(label).width;
-      const lx = room ? x + radius + 5 * dpr : x - radius - 5 * dpr; // left of it at the edge
-      ctx.textAlign = room ? "left" : "right";
-      ctx.lineWidth = 3 * dpr;
-      ctx.strokeStyle = "rgba(0, 0, 0, 0.8)";
-      ctx.strokeText(label, lx, y - radius);
-      ctx.fillStyle = "#ffffff";
-      ctx.fillText(label, lx, y - radius);
+      const text = state === null || state === "moving" ? unit.unit_id : `${unit.unit_id} (${STATES[state].words})`;
+      marks.push({ unit, x, y, text, alpha: ctx.globalAlpha });
     }
+    labels = placeLabels(marks, radius, dpr);
+    for (const label of labels) drawLabel(label, dpr);
     ctx.globalAlpha = 1;
+  }
+
+  /** Where each unit's label goes [canvas px]: beside its marker, the first of the places
+   * ``labelPlaces`` lists that stays on the canvas and overlaps no label placed before
+   * and no other unit's marker; units close together (0.5 m) get places further up or
+   * down, tied to their marker by a leader line. ``marks``: {unit, x, y, text, alpha}. */
+  function placeLabels(marks, radius, dpr) {
+    const reach = Math.max(1.4 * radius, radius + 7 * dpr); // a marker's half size, ring and all
+    markerReach = reach;
+    const markers = marks.map((m) => ({ unit: m.unit, left: m.x - reach, top: m.y - reach, right: m.x + reach, bottom: m.y + reach }));
+    const height = (LABEL_FONT_PX + 4) * dpr;
+    const placed = [];
+    for (const mark of marks) {
+      const width = ctx.measureText(mark.text).width + 4 * dpr;
+      const places = labelPlaces(mark, width, height, radius, dpr);
+      const fits = (box) =>
+        box.left >= 0 && box.top >= 0 && box.right <= canvas.width && box.bottom <= canvas.height &&
+        !placed.some((other) => overlaps(box, other)) &&
+        !markers.some((m) => m.unit !== mark.unit && overlaps(box, m));
+      const box = places.find(fits) || places[0];
+      placed.push({ ...box, unit_id: mark.unit.unit_id, text: mark.text, x: mark.x, y: mark.y, radius, alpha: mark.alpha });
+    }
+    return placed;
+  }
+
+  /** The places a label of ``width`` x ``height`` [px] may take beside ``mark``, in order
+   * of preference: above right, above left, below right, below left of the marker, then
+   * rows further above and below, on either side (these with a leader line). */
+  function labelPlaces(mark, width, height, radius, dpr) {
+    const gap = 5 * dpr;
+    const right = mark.x + radius + gap;
+    const left = mark.x - radius - gap - width;
+    const above = mark.y - radius - height;
+    const below = mark.y + radius;
+    const box = (l, t, leader) => ({ left: l, top: t, right: l + width, bottom: t + height, width, height, leader });
+    const places = [box(right, above, false), box(left, above, false), box(right, below, false), box(left, below, false)];
+    for (let row = 1; row <= LABEL_ROWS; row++) {
+      const step = row * (height + 2 * dpr);
+      for (const l of [right, left]) {
+        places.push(box(l, above - step, true), box(l, below + step, true));
+      }
+    }
+    return places;
+  }
+
+  function overlaps(a, b) {
+    return a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+  }
+
+  /** One placed label: white text outlined dark, and its leader line to the marker. */
+  function drawLabel(label, dpr) {
+    ctx.globalAlpha = label.alpha;
+    if (label.leader) {
+      const lx = Math.min(Math.max(label.x, label.left), label.right); // nearest point of the box
+      const ly = label.y < label.top ? label.top : label.bottom;
+      const length = Math.hypot(lx - label.x, ly - label.y) || 1;
+      ctx.beginPath(); // from the marker's edge
+      ctx.moveTo(label.x + ((lx - label.x) * label.radius) / length, label.y + ((ly - label.y) * label.radius) / length);
+      ctx.lineTo(lx, ly);
+      ctx.strokeStyle = "rgba(0, 0, 0, 0.8)";
+      ctx.lineWidth = 1.5 * dpr;
+      ctx.stroke();
+    }
+    ctx.textAlign = "left";
+    ctx.textBaseline = "middle";
+    const tx = label.left + 2 * dpr;
+    const ty = (label.top + label.bottom) / 2;
+    ctx.lineWidth = 3 * dpr;
+    ctx.strokeStyle = "rgba(0, 0, 0, 0.8)";
+    ctx.strokeText(label.text, tx, ty);
+    ctx.fillStyle = "#ffffff";
+    ctx.fillText(label.text, tx, ty);
+    ctx.textBaseline = "alphabetic";
   }
 
   // ------------------------------------------------------------------ panels
@@ -839,6 +912,15 @@
     },
     get units() {
       return units;
+    },
+    /** The unit labels as drawn: {unit_id, text, left, top, right, bottom, leader, x, y}
+     * [canvas px] (x, y: the unit's marker), after a synchronous redraw. */
+    get labels() {
+      draw();
+      return labels.map(({ unit_id, text, left, top, right, bottom, leader, x, y }) => ({ unit_id, text, left, top, right, bottom, leader, x, y }));
+    },
+    get markerReach() {
+      return markerReach;
     },
     setView, // "costmap" | "occupancy" | "age"; resolves once the view is painted
     valueAt,

@@ -30,7 +30,10 @@ def open_recording(path: Path | str, options: RecordingOptions | None = None) ->
     does not exist or no reader knows it (the message lists what is read)."""
     path = Path(path)
     if not path.exists():
-        raise RecordingError(f"{path}: no such file or folder")
+        raise RecordingError(
+            f"{path}: no such file or folder (give a scan file, a ROS 1 or 2 bag or a CARMEN "
+            "log: docs/recordings.md)"
+        )
     for _, matches, reader in READERS:
         if matches(path):
             return reader(path, options or RecordingOptions())

@@ -1,0 +1,45 @@
+"""The socket ``fleetmap serve`` listens on, bound before the server starts, so that a
+port in use or an address that is not this machine's is one ``error:`` line naming the
+setting to change (exit 2), not uvicorn's log line and its exit status 3."""
+
+from __future__ import annotations
+
+import errno
+import socket
+
+REASONS = {
+    errno.EADDRINUSE: ("--port", "another program listens there (stop it, or choose another "
+                       "--port; --port 0 picks a free one)"),
+    errno.EADDRNOTAVAIL: ("--host", "not an address of this machine (choose another --host)"),
+    errno.EACCES: ("--port", "permission denied (ports below 1024 need privileges: choose a "
+                   "--port from 1024)"),
+}  # fmt: skip
+"""What each bind failure means, the flag it is about and the fix, by errno."""
+
+
+class ListenError(OSError):
+    """The server cannot listen at ``host``:``port``; the message says why and what to change."""
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host`` (a name or IPv4 address; IPv6 when it holds a
+    colon, as uvicorn reads it) and ``port`` (0: a free one), address reuse on as uvicorn
+    sets it; ListenError when the bind fails."""
+    address = host.strip("[]")
+    sock = socket.socket(socket.AF_INET6 if ":" in address else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((address, port))
+    except OSError as exc:
+        sock.close()
+        if isinstance(exc, socket.gaierror):
+            flag, reason = "--host", f"{exc.strerror} (choose another --host)"
+        else:
+            flag, reason = REASONS.get(
+                exc.errno, ("--port", f"{exc.strerror} (choose another --host or --port)")
+            )
+        shown = f"[{address}]" if ":" in address else address
+        value = port if flag == "--port" else host
+        raise ListenError(f"{flag} {value}: cannot listen on {shown}:{port}: {reason}") from None
+    sock.set_inheritable(True)
+    return sock
