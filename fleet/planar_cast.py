@@ -58,19 +58,10 @@ _NORMALS = np.array(
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _local(geom, j, ox, oy, dx, dy):
-    """The ray's origin and direction in body ``j``'s own axes."""
-    c, s = geom[j, COS], geom[j, SIN]
-    lx, ly = ox - geom[j, CX], oy - geom[j, CY]
-    return c * lx + s * ly, -s * lx + c * ly, c * dx + s * dy, -s * dx + c * dy
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _box_crossing(geom, j, ox, oy, dx, dy, t0):
-    """[m] first crossing of box ``j``'s boundary at t >= t0 (slab test), inf if none."""
-    u, v, du, dv = _local(geom, j, ox, oy, dx, dy)
+def _box_crossing(u, v, du, dv, a, b, t0):
+    """[m] first crossing at t >= t0 of the boundary of the box of half sides (a, b) [m]
+    by the ray (u, v) + t (du, dv) in the box's axes (slab test); inf if none."""
     lo, hi = -np.inf, np.inf
-    a, b = geom[j, HALF_A], geom[j, HALF_B]
     if du == 0.0:
         if abs(u) > a:
             return np.inf
@@ -92,7 +83,7 @@ def _box_crossing(geom, j, ox, oy, dx, dy, t0):
     return np.inf
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _side(u, v):
     """The side whose sector holds the direction of point (u, v) (body axes)."""
     angle = math.atan2(v, u)
@@ -102,11 +93,10 @@ def _side(u, v):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _prism_crossing(geom, j, ox, oy, dx, dy, t0):
-    """[m] first crossing of prism ``j``'s boundary at t >= t0, inf if none (module
+def _prism_crossing(u, v, du, dv, r, apothem, t0):
+    """[m] first crossing at t >= t0 of the boundary of the prism of circumradius ``r``
+    and ``apothem`` [m] by the ray (u, v) + t (du, dv) in its axes; inf if none (module
     docstring)."""
-    u, v, du, dv = _local(geom, j, ox, oy, dx, dy)
-    r, apothem = geom[j, HALF_A], geom[j, HALF_B]
     b = u * du + v * dv
     disc = b * b - (u * u + v * v - r * r)
     if disc < 0.0:
@@ -137,12 +127,17 @@ def _prism_crossing(geom, j, ox, oy, dx, dy, t0):
 @njit(cache=True, nogil=True, inline="always")
 def crossing(geom, j, ox, oy, dx, dy, z, t0):
     """[m] first crossing of body ``j``'s boundary by the ray at t >= t0 at height ``z``
-    [m]; inf if none (or the body is not at that height)."""
+    [m]; inf if none (or the body is not at that height). (Inlined, as are the other
+    kernels that take arrays, so that no array is passed, and reference-counted, per
+    ray or per body.)"""
     if z < geom[j, Z_LOW] or z > geom[j, Z_HIGH]:
         return np.inf
+    c, s = geom[j, COS], geom[j, SIN]
+    lx, ly = ox - geom[j, CX], oy - geom[j, CY]
+    u, v, du, dv = c * lx + s * ly, -s * lx + c * ly, c * dx + s * dy, -s * dx + c * dy
     if geom[j, KIND] == PRISM:
-        return _prism_crossing(geom, j, ox, oy, dx, dy, t0)
-    return _box_crossing(geom, j, ox, oy, dx, dy, t0)
+        return _prism_crossing(u, v, du, dv, geom[j, HALF_A], geom[j, HALF_B], t0)
+    return _box_crossing(u, v, du, dv, geom[j, HALF_A], geom[j, HALF_B], t0)
 
 
 @njit(cache=True, nogil=True)
@@ -259,7 +254,7 @@ def cast_ray(ox, oy, dx, dy, z, t0, t1, grid, shape, tables_a, tables_b):
     return best, hit
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _clip(o, d, g0, g1, lo, hi):
     """[lo, hi] cut to where ``o + t d`` lies in [g0, g1] along one axis (lo > hi: empty)."""
     if d == 0.0:
@@ -268,7 +263,7 @@ def _clip(o, d, g0, g1, lo, hi):
     return max(lo, min(ta, tb)), min(hi, max(ta, tb))
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _walk(o, d, g0, cell, i):
     """Along one axis from cell ``i``: (step, t of the next cell border, t per cell)."""
     if d > 0.0:
