@@ -25,6 +25,11 @@ when its centre is closer than its radius to the obstacle's footprint, another u
 the centres are closer than the sum of the radii. (Bullet has no mesh-mesh test, and
 the footprints are the true geometry the meshes stand for.)
 
+Rays: ``cast_rays`` / ``ray_hits`` are Bullet's ``rayTestBatch``, the reference;
+``footprints`` is the same solids as planar footprints in a uniform grid
+(``fleet.footprint_index``), made at its first use and from then on kept in step with
+every body added, moved or removed, for the ``grid`` LiDAR caster (``fleet.casters``).
+
 Obstacles are added, moved and removed at run time by id; each change is logged with the
 world's clock (``time``, advanced by the simulation with ``advance_to``), so
 ``obstacles_at(t)`` gives the true geometry at any past sim time: the ground truth.

@@ -260,6 +260,30 @@ def scenario_run(scenario: Scenario) -> dict:
             "realtime_factor": (sim1 - sim0) / (wall1 - wall0)}  # fmt: skip
 
 
+def index_upkeep(scenario: Scenario, repeat: int = 50) -> dict:
+    """[us] keeping the grid caster's index in step, on the scenario's floor after a
+    step: one body's row written (``move_unit``), the units' cell lists rebuilt (each
+    step's cost) and the obstacles' (each obstacle change's); medians of ``repeat``."""
+    world, sim = shuttle_sim(scenario)
+    with world:
+        sim.step(scenario.dt)
+        index = world.footprints
+        pose = world.unit_pose("u1")
+        out = {"obstacles": len(world.obstacles), "units": len(sim.units)}
+        for name, work in (
+            ("row_write_us", lambda: index.move_unit("u1", pose.x, pose.y, pose.yaw)),
+            ("unit_cells_us", lambda: index.rebuild_cells(obstacles=False)),
+            ("obstacle_cells_us", lambda: index.rebuild_cells(units=False)),
+        ):
+            times = []
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                work()
+                times.append(time.perf_counter() - t0)
+            out[name] = float(np.median(times)) * 1e6
+    return out
+
+
 def profile_steps(scenario: Scenario, steps: int) -> dict:
     """The functions with the most time of their own over ``steps`` steps of
     ``shuttle_sim``: (name, ms per step, % of the step)."""
@@ -393,6 +417,14 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
                     f"{case['sim_rays_per_s'] / 1e6:10.3f} {case['bare_rays_per_s'] / 1e6:11.3f} "
                     f"{case['overhead_pct']:7.1f}% {case['realtime_factor']:11.2f}"
                 )
+    if "grid" in args.casters:
+        upkeep = result["grid_index_upkeep"] = index_upkeep(hundred_units("grid", 60.0))
+        print(
+            f"grid index on hundred_units ({upkeep['obstacles']} obstacles, {upkeep['units']} "
+            f"units): a row written {upkeep['row_write_us']:.1f} us, the units' cells rebuilt "
+            f"{upkeep['unit_cells_us']:.1f} us (once a step), the obstacles' "
+            f"{upkeep['obstacle_cells_us']:.1f} us (once per obstacle change)"
+        )
     scenario = result["hundred_units"] = []
     for caster in args.casters if args.scenario_seconds > 0 else ():
         setup = hundred_units(caster, args.scenario_seconds)
