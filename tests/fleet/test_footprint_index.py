@@ -61,6 +61,8 @@ def test_heights_the_range_window_and_bodies_off_the_grid():
     index.put_unit("u9", 0.3, 0.005, 0.405)
     index.move_unit("u9", -30.0, 10.0, 0.0)  # far off the floor, outside the grid
     assert cast(index, 1.0, 10.0, math.pi) == (pytest.approx(30.7, abs=1e-12), "u9")
+    with pytest.raises(KeyError, match="no body 'ghost'"):
+        index.move_unit("ghost", 1.0, 1.0, 0.0)  # a unit is put before it is moved
 
 
 def test_a_long_wall_across_many_cells_is_met_in_each():
