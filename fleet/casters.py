@@ -35,12 +35,14 @@ CASTERS = ("grid", "bullet")
 """The casters by name (module docstring)."""
 DEFAULT_CASTER = "grid"
 """The caster a LiDAR uses unless told (``lidar.caster`` in a scenario file)."""
+CASTER_CHOICES = f"must be one of {list(CASTERS)}"
+"""Why a name that is not a caster's is refused."""
 
 
 def check_caster(name: object) -> str:
     """``name`` if it names a caster; else FieldError on ``caster`` naming the choices."""
     if not isinstance(name, str) or name not in CASTERS:
-        raise FieldError("caster", name, f"must be one of {list(CASTERS)}")
+        raise FieldError("caster", name, CASTER_CHOICES)
     return name
 
 

@@ -34,7 +34,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 
 from fleet.boxworld import Warehouse
-from fleet.casters import CASTERS, DEFAULT_CASTER
+from fleet.casters import CASTER_CHOICES, CASTERS, DEFAULT_CASTER
 from fleet.layout import Layout
 from fleet.lidar import LidarConfig
 from fleet.localization import PoseNoise
@@ -242,9 +242,7 @@ class LidarFields(domain_section(LidarConfig, "LidarConfigFields", "``LidarConfi
     """``units.lidar``: ``LidarConfig``, and ``caster``, how its beams are cast
     (``fleet.casters``)."""
 
-    caster: Annotated[Literal[CASTERS], reworded(f"must be one of {list(CASTERS)}")] = (
-        DEFAULT_CASTER
-    )
+    caster: Annotated[Literal[CASTERS], reworded(CASTER_CHOICES)] = DEFAULT_CASTER
 
     def build(self) -> LidarConfig:
         """The ``LidarConfig`` (``caster`` is the sim's, not the sensor's)."""
