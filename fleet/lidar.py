@@ -1,4 +1,6 @@
-"""A planar LiDAR on a drive unit, cast in the PyBullet world with ``rayTestBatch``.
+"""A planar LiDAR on a drive unit: its beams cast in the world by a caster
+(``fleet.casters``: ``grid``, numba over the bodies' footprints, or ``bullet``, PyBullet's
+``rayTestBatch``), then its flaws applied, the same way whichever cast.
 
 The sensor sits on the unit's centre line, ``height`` [m] above the floor, and sweeps
 ``beams`` horizontal beams over ``fov`` centred on the unit's heading
@@ -6,10 +8,9 @@ The sensor sits on the unit's centre line, ``height`` [m] above the floor, and s
 
 Own body: each ray starts ``start`` = body radius + ``RAY_START_CLEARANCE_M`` from the
 sensor, outside the unit's own convex body, so the unit never sees itself; ranges are
-still measured from the sensor (``start + fraction * (range_max - start)``). Anything
-closer than ``start`` (inside the body) is never seen. The rays are fixed in the unit's
-body frame and cast with ``parentObjectUniqueId``, so Bullet moves them with the body and
-nothing is rebuilt per scan.
+still measured from the sensor. Anything closer than ``start`` (inside the body) is never
+seen; a beam that starts inside another body (one the unit touches) reads where it leaves
+that body, as Bullet's ray test reports the far wall of a closed mesh from inside.
 
 Ranges follow ROS REP 117 (docs/http-api.md 2.1): a miss (no surface within ``range_max``) reads
 ``+inf``. Sensor flaws, applied in this order with the LiDAR's own generator:
@@ -34,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fleet.boxworld import beam_angles
+from fleet.casters import DEFAULT_CASTER, BeamFan, fan_caster
 from mapserver.core.errors import FieldError
 
 if TYPE_CHECKING:  # the world imports PyBullet; a scenario file's LiDAR settings do not
@@ -105,9 +107,15 @@ class LidarConfig:
 
 class Lidar:
     """One unit's LiDAR: ``config``, mounted on a body of ``body_radius`` [m], flaws drawn
-    from ``rng``."""
+    from ``rng``, beams cast by the caster named ``caster`` (``fleet.casters.CASTERS``)."""
 
-    def __init__(self, config: LidarConfig, body_radius: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        config: LidarConfig,
+        body_radius: float,
+        rng: np.random.Generator,
+        caster: str = DEFAULT_CASTER,
+    ) -> None:
         self.config = config
         self.rng = rng
         self.start = body_radius + RAY_START_CLEARANCE_M
@@ -118,13 +126,9 @@ class Lidar:
                 f"must exceed the unit's radius plus {RAY_START_CLEARANCE_M} m ({self.start} m)",
             )
         self.angle_min, self.angle_increment = beam_angles(config.beams, config.fov)  # [rad]
-        angles = config.angles()
-        c, s = np.cos(angles), np.sin(angles)
-        z = np.full(config.beams, config.height)
-        self._span = config.range_max - self.start
-        # Body-frame ray ends as Python lists, built once: PyBullet converts lists fastest.
-        self._from = np.stack([self.start * c, self.start * s, z], axis=1).tolist()
-        self._to = np.stack([config.range_max * c, config.range_max * s, z], axis=1).tolist()
+        fan = BeamFan(config.angles(), self.start, config.range_max, config.height)
+        self.caster = caster
+        self._caster = fan_caster(caster, fan)
         self._scene: object = None  # the key of the last cast and its ranges [m]
         self._ranges = np.empty(0)
 
@@ -138,8 +142,7 @@ class Lidar:
         """
         if scene is not None and scene == self._scene:
             return self._ranges
-        fractions = world.cast_rays(self._from, self._to, frame_unit=unit_id)
-        ranges = fractions * self._span + self.start  # inf stays inf
+        ranges = self._caster.cast(world, unit_id)
         ranges.flags.writeable = False
         self._scene, self._ranges = scene, ranges
         return ranges

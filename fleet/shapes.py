@@ -17,6 +17,10 @@ import numpy as np
 
 from mapserver.core.errors import FieldError
 
+PRISM_SIDES = 64
+"""Sides of the regular prisms that stand for cylinders (people, units) in the PyBullet
+world and its planar caster: inscribed in the circle, the vertices at angles
+``2 pi k / PRISM_SIDES`` from the body's x axis."""
 Bounds = tuple[float, float, float, float]
 """An axis-aligned bounding box ``(xmin, ymin, xmax, ymax)`` [m]."""
 

@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fleet.casters import DEFAULT_CASTER, check_caster
 from fleet.lidar import Lidar, LidarConfig
 from fleet.localization import Localizer, PoseNoise
 from fleet.poster import ScanPoster
@@ -84,13 +85,18 @@ WorldChange = Callable[["World"], None]
 
 @dataclass(frozen=True)
 class UnitSpec:
-    """One unit: ``unit_id``, its ``start`` pose, body and limits, LiDAR, localisation noise."""
+    """One unit: ``unit_id``, its ``start`` pose, body and limits, LiDAR, localisation noise,
+    and the caster of its LiDAR's beams (``fleet.casters.CASTERS``)."""
 
     unit_id: str
     start: Pose2D
     drive: DriveLimits = field(default_factory=DriveLimits)
     lidar: LidarConfig = field(default_factory=LidarConfig)
     pose_noise: PoseNoise = field(default_factory=PoseNoise)
+    caster: str = DEFAULT_CASTER
+
+    def __post_init__(self) -> None:
+        check_caster(self.caster)
 
 
 @dataclass(frozen=True)
@@ -227,7 +233,9 @@ class FleetSim:
             self._units[spec.unit_id] = SimUnit(
                 spec=spec,
                 drive=DriveUnit(spec.unit_id, spec.start, spec.drive),
-                lidar=Lidar(spec.lidar, spec.drive.radius, np.random.default_rng(lidar_seed)),
+                lidar=Lidar(
+                    spec.lidar, spec.drive.radius, np.random.default_rng(lidar_seed), spec.caster
+                ),
                 localizer=Localizer(spec.pose_noise, np.random.default_rng(pose_seed)),
             )
         for unit_id, unit in self._units.items():  # contacts at the start are not events

@@ -25,6 +25,11 @@ when its centre is closer than its radius to the obstacle's footprint, another u
 the centres are closer than the sum of the radii. (Bullet has no mesh-mesh test, and
 the footprints are the true geometry the meshes stand for.)
 
+Rays: ``cast_rays`` / ``ray_hits`` are Bullet's ``rayTestBatch``, the reference;
+``footprints`` is the same solids as planar footprints in a uniform grid
+(``fleet.footprint_index``), made at its first use and from then on kept in step with
+every body added, moved or removed, for the ``grid`` LiDAR caster (``fleet.casters``).
+
 Obstacles are added, moved and removed at run time by id; each change is logged with the
 world's clock (``time``, advanced by the simulation with ``advance_to``), so
 ``obstacles_at(t)`` gives the true geometry at any past sim time: the ground truth.
@@ -33,7 +38,7 @@ world's clock (``time``, advanced by the simulation with ``advance_to``), so
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from operator import itemgetter
 from types import MappingProxyType
@@ -42,8 +47,9 @@ from typing import Any
 import numpy as np
 
 from fleet.bullet import load_pybullet
+from fleet.footprint_index import FootprintIndex
 from fleet.layout import Layout, Obstacle
-from fleet.shapes import Box
+from fleet.shapes import PRISM_SIDES, Box
 from mapserver.core.scan import Pose2D
 
 p = load_pybullet()  # SimulatorMissing without the sim extra
@@ -51,8 +57,6 @@ p = load_pybullet()  # SimulatorMissing without the sim extra
 RAY_BATCH_MAX = p.MAX_RAY_INTERSECTION_BATCH_SIZE - 1
 """Rays per ``rayTestBatch`` call: 16383, the design's chunk, one below PyBullet's
 ``MAX_RAY_INTERSECTION_BATCH_SIZE`` (16384; a larger batch raises ``pybullet.error``)."""
-PRISM_SIDES = 64
-"""Sides of the prisms that stand for cylinders (people, units)."""
 UNIT_LIFT_M = 0.005
 """[m] gap between a unit's body and the floor."""
 FLOOR_THICKNESS_M = 0.1
@@ -115,9 +119,11 @@ class World:
         self._obstacles: dict[str, Obstacle] = {}
         self._units: dict[str, Pose2D] = {}
         self._unit_radius: dict[str, float] = {}
+        self._unit_height: dict[str, float] = {}
         self._changes: list[Change] = []
         self._revision = 0
         self._reset_revision = 0
+        self._footprints: FootprintIndex | None = None
         self.time = 0.0
         self._floor = self._make_floor()
         for obstacle in layout.obstacles:
@@ -201,6 +207,8 @@ class World:
             physicsClientId=self._client,
         )
         self._obstacles[obstacle_id] = after
+        if self._footprints is not None:
+            self._footprints.put_obstacle(obstacle_id, after.shape, after.height)
         self._log(obstacle_id, before, after)
 
     def remove(self, obstacle_id: str) -> None:
@@ -249,6 +257,9 @@ class World:
         self._owner[body] = unit_id
         self._units[unit_id] = pose
         self._unit_radius[unit_id] = float(radius)
+        self._unit_height[unit_id] = float(height)
+        if self._footprints is not None:
+            self._footprints.put_unit(unit_id, radius, UNIT_LIFT_M, UNIT_LIFT_M + height)
         self.set_unit_pose(unit_id, pose)
 
     def set_unit_pose(self, unit_id: str, pose: Pose2D) -> None:
@@ -262,6 +273,8 @@ class World:
             physicsClientId=self._client,
         )
         self._units[unit_id] = pose
+        if self._footprints is not None:
+            self._footprints.move_unit(unit_id, pose.x, pose.y, pose.yaw)
 
     def body_id(self, object_id: str) -> int:
         """The PyBullet body id of obstacle or unit ``object_id`` (ids are reused after a
@@ -313,6 +326,22 @@ class World:
         return (pose.x, pose.y)
 
     # ------------------------------------------------------------------ rays
+    @property
+    def footprints(self) -> FootprintIndex:
+        """Every obstacle and unit as a planar footprint in a grid (``fleet.footprint_index``,
+        for the ``grid`` LiDAR caster), built at the first call and kept in step with
+        every change after it."""
+        if self._footprints is None:
+            index = FootprintIndex(self.layout.width, self.layout.height)
+            for obstacle in self._obstacles.values():
+                index.put_obstacle(obstacle.id, obstacle.shape, obstacle.height)
+            for unit_id, pose in self._units.items():
+                top = UNIT_LIFT_M + self._unit_height[unit_id]
+                index.put_unit(unit_id, self._unit_radius[unit_id], UNIT_LIFT_M, top)
+                index.move_unit(unit_id, pose.x, pose.y, pose.yaw)
+            self._footprints = index
+        return self._footprints
+
     def cast_rays(
         self,
         ray_from: Sequence[Sequence[float]],
@@ -327,6 +356,35 @@ class World:
         reports a miss as fraction 1, so a surface exactly at a ray's end reads as a miss.
         Rays go to ``rayTestBatch`` in chunks of at most ``RAY_BATCH_MAX``.
         """
+        out = np.empty(len(ray_from), dtype=np.float64)
+        for start, stop, hits in self._ray_batches(ray_from, ray_to, frame_unit):
+            out[start:stop] = np.fromiter(map(_HIT_FRACTION, hits), np.float64, stop - start)
+        out[out >= 1.0] = np.inf
+        return out
+
+    def ray_hits(
+        self,
+        ray_from: Sequence[Sequence[float]],
+        ray_to: Sequence[Sequence[float]],
+        frame_unit: str | None = None,
+    ) -> tuple[np.ndarray, list[str | None]]:
+        """``cast_rays`` and, for each ray, the id of the obstacle or unit it hits first
+        (None: nothing, or the floor)."""
+        fractions = np.empty(len(ray_from), dtype=np.float64)
+        owners: list[str | None] = []
+        for start, stop, hits in self._ray_batches(ray_from, ray_to, frame_unit):
+            fractions[start:stop] = [hit[2] for hit in hits]
+            owners += [self._owner.get(hit[0]) for hit in hits]
+        fractions[fractions >= 1.0] = np.inf
+        return fractions, owners
+
+    def _ray_batches(
+        self,
+        ray_from: Sequence[Sequence[float]],
+        ray_to: Sequence[Sequence[float]],
+        frame_unit: str | None,
+    ) -> Iterator[tuple[int, int, Sequence[Sequence[Any]]]]:
+        """(start, stop, ``rayTestBatch``'s hits of rays ``start:stop``) per chunk."""
         n = len(ray_from)
         if len(ray_to) != n:
             raise ValueError(f"ray_to must hold one end per ray ({n}), got {len(ray_to)}")
@@ -334,18 +392,18 @@ class World:
         if frame_unit is not None:
             kwargs["parentObjectUniqueId"] = self._body[frame_unit]
             kwargs["parentLinkIndex"] = -1
-        out = np.empty(n, dtype=np.float64)
         for start in range(0, n, RAY_BATCH_MAX):
             stop = min(n, start + RAY_BATCH_MAX)
             whole = start == 0 and stop == n
-            hits = p.rayTestBatch(
-                ray_from if whole else ray_from[start:stop],
-                ray_to if whole else ray_to[start:stop],
-                **kwargs,
+            yield (
+                start,
+                stop,
+                p.rayTestBatch(
+                    ray_from if whole else ray_from[start:stop],
+                    ray_to if whole else ray_to[start:stop],
+                    **kwargs,
+                ),
             )
-            out[start:stop] = np.fromiter(map(_HIT_FRACTION, hits), np.float64, stop - start)
-        out[out >= 1.0] = np.inf
-        return out
 
     # ------------------------------------------------------------------ internals
     def _log(self, obstacle_id: str, before: Obstacle | None, after: Obstacle | None) -> None:
@@ -414,9 +472,13 @@ class World:
         self._body[obstacle.id] = body
         self._owner[body] = obstacle.id
         self._obstacles[obstacle.id] = obstacle
+        if self._footprints is not None:
+            self._footprints.put_obstacle(obstacle.id, shape, obstacle.height)
 
     def _destroy(self, obstacle_id: str) -> None:
         body = self._body.pop(obstacle_id)
         del self._owner[body]
         del self._obstacles[obstacle_id]
         p.removeBody(body, physicsClientId=self._client)
+        if self._footprints is not None:
+            self._footprints.remove_obstacle(obstacle_id)

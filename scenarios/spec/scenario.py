@@ -29,11 +29,12 @@ import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
 from fleet.boxworld import Warehouse
+from fleet.casters import CASTER_CHOICES, CASTERS, DEFAULT_CASTER
 from fleet.layout import Layout
 from fleet.lidar import LidarConfig
 from fleet.localization import PoseNoise
@@ -44,7 +45,7 @@ from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import Pose2D
 from mapserver.core.sensor_model import Policy
 from mapserver.service.settings import Settings
-from mapserver.service.validation import Section, domain_section, number, text
+from mapserver.service.validation import Section, domain_section, number, reworded, text
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
 from scenarios.spec.coordination import DEFAULT_COORDINATION, CoordinationFields
@@ -107,13 +108,15 @@ MAX_UNITS = 500
 class UnitsSpec:
     """The fleet: one start pose per unit (unit ``u<k>`` starts at ``starts[k - 1]``),
     their body and limits, LiDAR and localisation noise; ``placed``: the starts were
-    placed at lane junctions (module docstring), not given."""
+    placed at lane junctions (module docstring), not given; ``caster``: how the LiDARs'
+    beams are cast (``fleet.casters.CASTERS``)."""
 
     starts: tuple[Pose2D, ...]
     drive: DriveLimits = field(default_factory=DriveLimits)
     lidar: LidarConfig = field(default_factory=LidarConfig)
     pose_noise: PoseNoise = field(default_factory=PoseNoise)
     placed: bool = False
+    caster: str = DEFAULT_CASTER
 
     @property
     def count(self) -> int:
@@ -128,7 +131,7 @@ class UnitsSpec:
     def specs(self) -> tuple[UnitSpec, ...]:
         """One ``fleet.sim.UnitSpec`` per unit, in id order."""
         return tuple(
-            UnitSpec(uid, start, self.drive, self.lidar, self.pose_noise)
+            UnitSpec(uid, start, self.drive, self.lidar, self.pose_noise, self.caster)
             for uid, start in zip(self.ids, self.starts, strict=True)
         )
 
@@ -233,7 +236,19 @@ class Scenario:
 
 # ---------------------------------------------------------------------------- the file
 DriveFields = domain_section(DriveLimits, "DriveFields", "``units.drive``: ``DriveLimits``.")
-LidarFields = domain_section(LidarConfig, "LidarFields", "``units.lidar``: ``LidarConfig``.")
+
+
+class LidarFields(domain_section(LidarConfig, "LidarConfigFields", "``LidarConfig``'s fields.")):
+    """``units.lidar``: ``LidarConfig``, and ``caster``, how its beams are cast
+    (``fleet.casters``)."""
+
+    caster: Annotated[Literal[CASTERS], reworded(CASTER_CHOICES)] = DEFAULT_CASTER
+
+    def build(self) -> LidarConfig:
+        """The ``LidarConfig`` (``caster`` is the sim's, not the sensor's)."""
+        return LidarConfig(**self.model_dump(exclude={"caster"}))
+
+
 PoseNoiseFields = domain_section(PoseNoise, "PoseNoiseFields", "``units.pose_noise``.")
 RecoveryFields = domain_section(RecoveryConfig, "RecoveryFields", "``recovery``.")
 
@@ -329,7 +344,14 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
     check_stops(doc, layout, storage, storage_paths, one_way, clearance)
 
     starts = _starts(doc, top.units, layout, drive, clearance)
-    units = UnitsSpec(starts, drive, lidar, top.units.pose_noise.build(), top.units.starts is None)
+    units = UnitsSpec(
+        starts,
+        drive,
+        lidar,
+        top.units.pose_noise.build(),
+        top.units.starts is None,
+        top.units.lidar.caster,
+    )
     tasks = parse_tasks(doc, top.tasks, units.count, top.duration)
     if tasks.enabled and not (storage and layout.stations):
         raise doc.error(

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fleet.boxworld import warehouse_layout
+from fleet.casters import CASTERS, BeamFan, fan_caster
 from fleet.ground_truth import GroundTruth
 from fleet.layout import Kind, Layout, Obstacle
 from fleet.lidar import LidarConfig
@@ -262,21 +263,25 @@ def test_a_unit_put_back_from_a_rack_and_run_into_by_its_follower_reports_both()
     assert gap == pytest.approx(0.6, abs=1e-6)  # b stopped where it touched a
 
 
-def test_a_still_unit_among_still_things_reuses_its_last_cast_and_anything_moving_recasts():
+@pytest.mark.parametrize("caster", CASTERS)
+def test_a_still_unit_among_still_things_reuses_its_last_cast_and_anything_moving_recasts(
+    caster, monkeypatch
+):
     specs = [
-        UnitSpec("u1", Pose2D(1.83, 4.83, 0.0), lidar=LidarConfig(beams=90)),
-        UnitSpec("u2", Pose2D(8.0, 4.83, 0.0), lidar=LidarConfig(beams=90)),
+        UnitSpec("u1", Pose2D(1.83, 4.83, 0.0), lidar=LidarConfig(beams=90), caster=caster),
+        UnitSpec("u2", Pose2D(8.0, 4.83, 0.0), lidar=LidarConfig(beams=90), caster=caster),
     ]
     with World(LAYOUT) as world:
         sim = FleetSim(world, specs, seed=0)
         casts = []
-        cast = world.cast_rays
+        kind = type(fan_caster(caster, BeamFan(np.zeros(1), 0.5, 1.0, 0.2)))
+        cast = kind.cast
 
-        def counting(*args, **kwargs):
-            casts.append(kwargs.get("frame_unit"))
-            return cast(*args, **kwargs)
+        def counting(self, world, unit_id):
+            casts.append(unit_id)
+            return cast(self, world, unit_id)
 
-        world.cast_rays = counting  # a spy on this world only
+        monkeypatch.setattr(kind, "cast", counting)  # a spy on this caster's casts
         first = {s.unit_id: s for s in sim.step(0.1).scans}
         assert sorted(casts) == ["u1", "u2"]
         casts.clear()

@@ -117,6 +117,14 @@ def test_dropouts_is_a_static_warehouse_seen_by_noisy_lidars_that_drop_beams():
     assert (model.p_miss_no_return, model.no_return_range) == (0.45, 1.0)  # the defaults
 
 
+def test_the_lidar_caster_is_a_scenario_setting_given_to_every_unit(tmp_path):
+    assert {spec.caster for spec in load_text(BASE, tmp_path).unit_specs()} == {"grid"}
+    text = BASE.replace("{beams: 90}", "{beams: 90, caster: bullet}")
+    scenario = load_text(text, tmp_path)
+    assert (scenario.units.caster, scenario.units.lidar.beams) == ("bullet", 90)
+    assert {spec.caster for spec in scenario.unit_specs()} == {"bullet"}
+
+
 def test_the_no_return_settings_are_scenario_settings(tmp_path):
     text = BASE.replace("{p_hit: 0.75}", "{p_miss_no_return: 0.5, no_return_range: null}")
     model = load_text(text, tmp_path).map_server.sensor_model
@@ -392,6 +400,11 @@ def test_errors_name_the_file_the_line_and_the_field(tmp_path, old, new, field, 
         ),
         ("seed: 0", "seed: true", "seed: must be an integer >= 0, got True"),
         ("{beams: 90}", "{beams: 9.5}", "units.lidar.beams: must be an integer, got 9.5"),
+        (
+            "{beams: 90}",
+            "{beams: 90, caster: fast}",
+            "units.lidar.caster: must be one of ['grid', 'bullet'], got 'fast'",
+        ),
         (
             "p_hit: 0.75",
             "p_hit: '0.75'",
