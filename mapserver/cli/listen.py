@@ -7,6 +7,8 @@ from __future__ import annotations
 import errno
 import socket
 
+from mapserver.core.errors import FleetmapError
+
 REASONS = {
     errno.EADDRINUSE: ("--port", "another program listens there (stop it, or choose another "
                        "--port; --port 0 picks a free one)"),
@@ -17,7 +19,7 @@ REASONS = {
 """What each bind failure means, the flag it is about and the fix, by errno."""
 
 
-class ListenError(OSError):
+class ListenError(FleetmapError, OSError):
     """The server cannot listen at ``host``:``port``; the message says why and what to change."""
 
 

@@ -27,6 +27,8 @@ from enum import StrEnum
 from functools import wraps
 from typing import Any, TypeVar
 
+from mapserver.core.errors import FleetmapError
+
 __all__ = [
     "REGISTRY",
     "Better",
@@ -44,7 +46,7 @@ __all__ = [
 ]
 
 
-class MetricError(ValueError):
+class MetricError(FleetmapError, ValueError):
     """A metric the registry does not declare (named), or one it declares left out."""
 
 
