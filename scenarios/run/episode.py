@@ -41,6 +41,7 @@ from mapserver.client import Grid, MapClient
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 from planner.coordinator import LaneCoordinator
+from planner.decisions import Action
 from planner.freeze import TruthLanes, classify
 from planner.grid_search import GridPlanner
 from planner.lane_graph import LaneGraph, SegmentQuerier
@@ -372,7 +373,7 @@ class Episode:
         replans = sum(
             1 for a in self.agents.values() for act in a.navigator.actions
             if act.action in ("replan", "reroute")
-        ) + sum(1 for d in self.coordinator.log if d.action == "reroute")  # fmt: skip
+        ) + sum(1 for d in self.coordinator.log if d.action is Action.REROUTE)  # fmt: skip
         throughput = self.standard.throughput.tracker
         metrics = {
             "scenario": self.setup.name,
