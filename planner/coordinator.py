@@ -61,18 +61,12 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import planner.policy_sets  # noqa: F401  (registers the built-in policy sets)
-from planner.coordination_state import (
-    CoordinationState,
-    CoordinatorSettings,
-    Tick,
-    Unit,
-)
+from planner.coordination_state import CoordinationState, CoordinatorSettings, Tick, Unit
 from planner.decisions import ACTIONS, Action, Cause, Decision
 from planner.lane_graph import Lane, LaneGraph, SegmentQuerier, lane_key
 from planner.policy import make_policies
-from planner.policy_sets import BUILT_IN
-from planner.reservations import Reservation, unit_order
+from planner.policy_sets import BUILT_IN  # registers the built-in policy sets
+from planner.reservations import Reservation, ReservationTable, unit_order
 
 __all__ = [
     "ACTIONS",
@@ -126,10 +120,10 @@ class LaneCoordinator:
     """Grants lanes to units on ``graph`` (module docstring): the driver of its policies.
 
     client: what ``refresh`` reads the costmap through (``MapClient`` or anything with its
-    ``query_segments``); None if the map is never read. The keyword settings are
-    ``CoordinatorSettings``'s (speed, clear_m, arrive_tol, retry_s, reserve_ahead_m,
-    back_off_hops), or give ``settings`` whole. policy: a registered policy set
+    ``query_segments``); None if the map is never read. policy: a registered policy set
     (``planner.policy.policy_names``): how units are granted their next edges.
+    settings: ``CoordinatorSettings``, or ``knobs``, its fields by name (``clear_m=1.2``;
+    the rest default).
 
     ``state`` is what the policies share (``CoordinationState``): ``table`` is its
     reservation table, ``log`` every decision, ``deadlocks`` the number of wait-for
@@ -141,24 +135,14 @@ class LaneCoordinator:
         graph: LaneGraph,
         client: SegmentQuerier | None = None,
         *,
-        speed: float = 1.0,
-        clear_m: float = 1.0,
-        arrive_tol: float = 0.1,
-        retry_s: float = 1.0,
-        reserve_ahead_m: float = 0.0,
-        back_off_hops: int = 3,
         policy: str = POLICIES[0],
         settings: CoordinatorSettings | None = None,
+        **knobs: float,
     ) -> None:
+        if settings is not None and knobs:
+            raise ValueError(f"give settings or {', '.join(sorted(knobs))}, not both")
         if settings is None:
-            settings = CoordinatorSettings(
-                speed=speed,
-                clear_m=clear_m,
-                arrive_tol=arrive_tol,
-                retry_s=retry_s,
-                reserve_ahead_m=reserve_ahead_m,
-                back_off_hops=back_off_hops,
-            )
+            settings = CoordinatorSettings(**knobs)
         self.policies = make_policies(policy, settings)
         self.policy = policy
         self.settings = settings
@@ -168,7 +152,7 @@ class LaneCoordinator:
         self._now = -math.inf
 
     @property
-    def table(self):
+    def table(self) -> ReservationTable:
         """The reservation table (``planner.reservations.ReservationTable``)."""
         return self.state.table
 

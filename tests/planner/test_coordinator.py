@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from lane_helpers import Drive, FakeMap, grid_graph, pocket_graph, warehouse_graph
 
 from fleet.boxworld import BoxWorld, Warehouse
-from planner.coordinator import ACTIONS, LaneCoordinator
+from planner.coordinator import ACTIONS, CoordinatorSettings, LaneCoordinator
 from planner.decisions import Action, Cause
 from planner.lane_graph import LaneGraph
 from planner.reservations import unit_order
@@ -376,6 +376,10 @@ def test_requests_are_checked_and_name_the_bad_value():
         coord.refresh(2.0)
     with pytest.raises(ValueError, match="clear_m must be a positive"):
         LaneCoordinator(grid_graph(2, 2), clear_m=0.0)
+    with pytest.raises(ValueError, match="back_off_hops must be an integer >= 1, got 0"):
+        LaneCoordinator(grid_graph(2, 2), back_off_hops=0)
+    with pytest.raises(ValueError, match="give settings or clear_m, not both"):
+        LaneCoordinator(grid_graph(2, 2), settings=CoordinatorSettings(), clear_m=2.0)
 
 
 def test_reservations_carry_time_windows_and_decisions_serialise():
