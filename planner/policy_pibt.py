@@ -35,10 +35,11 @@ of units cannot rotate at once: a ring is resolved by one of its units stepping 
 Corridor claims and lane holds are kept: their holders count as blockers like a node's
 holder; a unit claims the corridor of the edge it wants when it decides (unless another
 unit claims it the other way), so its stale claim from the edge it last drove does not
-stop the units it pushes ahead of it. The nodes claimed by waiting units (``_intents``)
-are also withheld from units reserving ahead, so moving units cannot starve a waiting
-unit. A unit moved off its route is given a new route from its new node. The deadlock
-breaker (``planner.policy_deadlocks``) still runs after the round as a logged safety net.
+stop the units it pushes ahead of it. The nodes claimed by waiting units
+(``CoordinationState.intents``) are also withheld from units reserving ahead, so moving
+units cannot starve a waiting unit. A unit moved off its route is given a new route from
+its new node. The deadlock breaker (``planner.policy_deadlocks``) still runs after the
+round as a logged safety net.
 
 Determinism: units in the order above, candidates in sorted order; ``now`` is the tick's.
 """
@@ -47,12 +48,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import networkx as nx
 
-if TYPE_CHECKING:
-    from planner.coordinator import _Tick, _Unit
+from planner.coordination_state import CoordinationState, Tick, Unit
+from planner.decisions import Action, Cause
+from planner.lane_graph import LaneGraph
+from planner.policy import CoordinationPolicy
+from planner.policy_blocked_lanes import turn_back
 
 PUSH, MOVING, HARD = "push", "moving", "hard"
 """How a blocker of a candidate edge behaves: it must be pushed (a standing unit that has
@@ -61,171 +64,195 @@ not decided yet), it will leave (driving, or decided to move), or it will not.""
 
 @dataclass
 class _Round:
-    """One tick's PIBT state: who decided (True: moves or will move; False: stays), which
-    node each claiming unit wants, and the chain of units being pushed."""
+    """One tick's PIBT state: the shared state and the tick, who decided (True: moves or
+    will move; False: stays), which node each claiming unit wants, and the chain of units
+    being pushed."""
 
+    state: CoordinationState
+    tick: Tick
     decided: dict[str, bool] = field(default_factory=dict)
     wanted: dict[str, str] = field(default_factory=dict)
     chain: list[str] = field(default_factory=list)
 
 
-class Pibt:
-    """Mixed into ``LaneCoordinator``: uses its table, graph, units, grants and log."""
+class Pibt(CoordinationPolicy):
+    """Units at nodes decide by priority inheritance with backtracking (module docstring);
+    units stopped on a blocked lane turn back first."""
 
-    def _pibt_round(self, tick: _Tick, ready: list[_Unit]) -> None:
+    name = "pibt"
+
+    def __init__(self) -> None:
+        self._dist_cache: dict[str, tuple[int, dict[str, float]]] = {}  # goal -> version, m
+
+    def decide(self, state: CoordinationState, tick: Tick, ready: list[Unit]) -> list[Unit]:
+        for u in ready:
+            if u.turn_back:
+                turn_back(state, tick, u)
+        self._round(state, tick, [u for u in ready if not u.turn_back])
+        return []
+
+    def _round(self, state: CoordinationState, tick: Tick, ready: list[Unit]) -> None:
         """Every ready unit (at a node with a route) decides, highest priority first."""
-        r = _Round()
+        r = _Round(state, tick)
         ready = sorted(ready, key=lambda u: self._pibt_rank(u, tick.now))
         for u in ready:
             if u.uid in r.decided or u.edge is not None or len(u.route) < 2:
                 continue
             cur, nxt = u.route[0], u.route[1]
-            if self.graph.graph.edges[cur, nxt]["blocked"]:
-                self._replan(tick, u, "lane_blocked", f"lane {cur}-{nxt} is blocked")
+            if state.graph.graph.edges[cur, nxt]["blocked"]:
+                state.replan(tick, u, Cause.LANE_BLOCKED, f"lane {cur}-{nxt} is blocked")
                 if len(u.route) < 2:
                     continue
-            self._pibt(tick, r, u, None)
-        self._intents = {n: uid for n, uid in r.wanted.items() if self._units[uid].edge is None}
+            self._pibt(r, u, None)
+        state.intents = {n: uid for n, uid in r.wanted.items() if state.units[uid].edge is None}
 
-    def _pibt_rank(self, u: _Unit, now: float) -> tuple[object, ...]:
+    def _pibt_rank(self, u: Unit, now: float) -> tuple[object, ...]:
         """Sort key: longest since its leg began first, then requested priority, id."""
         return (-(now - u.since), -u.priority, u.order)
 
-    def _pibt(self, tick: _Tick, r: _Round, u: _Unit, parent: _Unit | None) -> bool:
+    def _pibt(self, r: _Round, u: Unit, parent: Unit | None) -> bool:
         """Decide for ``u`` (pushed by ``parent``, or a root when None): True if it moves
         or will move off its node, False if it stays."""
+        state, tick = r.state, r.tick
         v = u.route[0]
         r.decided[u.uid] = False
         r.chain.append(u.uid)
         first_block: tuple[str, tuple[str, ...]] | None = None
         try:
-            for m in self._pibt_candidates(u, parent):
+            for m in self._pibt_candidates(state, u, parent):
                 if m == v:
                     break  # staying ranks before the rest
                 if m in r.wanted:
                     first_block = first_block or (m, (r.wanted[m],))
                     continue
-                blockers = self.table.blockers(u.uid, v, m)
+                blockers = state.table.blockers(u.uid, v, m)
                 kinds = [self._blocker_kind(r, b, v, m) for b in blockers]
                 if HARD in kinds:
                     first_block = first_block or (m, blockers)
                     continue
                 r.wanted[m] = u.uid
-                before = self._pibt_claim(u, v, m, tick.now)
-                if not all(self._pushed(tick, r, b, u, m) for b in blockers):
+                before = self._pibt_claim(state, u, v, m, tick.now)
+                if not all(self._pushed(r, b, u, m) for b in blockers):
                     del r.wanted[m]
-                    self.table.restore_claim(u.uid, before)
+                    state.table.restore_claim(u.uid, before)
                     first_block = first_block or (m, blockers)
                     continue
                 r.decided[u.uid] = True
-                left = self.table.blockers(u.uid, v, m)
+                left = state.table.blockers(u.uid, v, m)
                 if left:
-                    if not self._standing(u):  # a standing unit is pushed again if need be
-                        self._pibt_wait(tick, u, m, left)
+                    if not u.standing:  # a standing unit is pushed again if need be
+                        self._pibt_wait(state, tick, u, m, left)
                 else:
-                    self._pibt_grant(tick, u, m, parent)
+                    self._pibt_grant(state, tick, u, m, parent)
                 return True
-            if first_block is not None and not self._standing(u):
-                self._pibt_wait(tick, u, *first_block)
+            if first_block is not None and not u.standing:
+                self._pibt_wait(state, tick, u, *first_block)
             return False
         finally:
             r.chain.pop()
 
-    def _pushed(self, tick: _Tick, r: _Round, uid: str, parent: _Unit, m: str) -> bool:
+    def _pushed(self, r: _Round, uid: str, parent: Unit, m: str) -> bool:
         """Make blocker ``uid`` of ``parent``'s candidate ``m`` leave if it must (an earlier
         push may already have decided it): False if it will not leave."""
         kind = self._blocker_kind(r, uid, parent.route[0], m)
         if kind == PUSH:
-            return self._pibt(tick, r, self._units[uid], parent)
+            return self._pibt(r, r.state.units[uid], parent)
         return kind == MOVING
 
-    def _pibt_claim(self, u: _Unit, v: str, m: str, now: float) -> tuple[int, int, float] | None:
+    def _pibt_claim(
+        self, state: CoordinationState, u: Unit, v: str, m: str, now: float
+    ) -> tuple[int, int, float] | None:
         """Claim the corridor of edge (v, m) along it for ``u``, which wants to drive it,
         unless another unit claims it the other way; returns the claim it had (to put
         back if ``u`` does not go). A standing unit's claim is that of the last edge it
         drove, which may point the other way and would stop the units it pushes."""
-        before = self.table.claim_of(u.uid)
-        d = self.graph.graph.edges[v, m]
-        if not self.table.claimants(d["corridor"], -d["heading"]) - {u.uid}:
-            self.table.claim(u.uid, d["corridor"], d["heading"], now)
+        before = state.table.claim_of(u.uid)
+        d = state.graph.graph.edges[v, m]
+        if not state.table.claimants(d["corridor"], -d["heading"]) - {u.uid}:
+            state.table.claim(u.uid, d["corridor"], d["heading"], now)
         return before
 
     def _blocker_kind(self, r: _Round, uid: str, v: str, m: str) -> str:
         """PUSH, MOVING or HARD (module docstring) for a unit in the way of edge (v, m).
         A unit driving (or about to drive) the edge's corridor the other way is coming
         toward the asking unit, not leaving: HARD."""
-        b = self._units[uid]
+        state = r.state
+        b = state.units[uid]
         if uid in r.chain or b.turn_back:
             return HARD
         if b.edge is None and uid not in r.decided:
             return PUSH
         if b.edge is None and not r.decided[uid]:
             return HARD
-        claim = self.table.claim_of(uid)
-        d = self.graph.graph.edges[v, m]
+        claim = state.table.claim_of(uid)
+        d = state.graph.graph.edges[v, m]
         if claim is not None and claim[:2] == (d["corridor"], -d["heading"]):
-            if self.table.holder(m) != uid:
+            if state.table.holder(m) != uid:
                 return HARD
         return MOVING
 
-    def _pibt_candidates(self, u: _Unit, parent: _Unit | None) -> list[str]:
+    def _pibt_candidates(self, state: CoordinationState, u: Unit, parent: Unit | None) -> list[str]:
         """Where ``u`` may go, best first (module docstring); staying only for a root."""
         v = u.route[0]
-        edges = self.graph.graph.edges
-        options = [m for m in self.graph.graph.successors(v) if not edges[v, m]["blocked"]]
+        edges = state.graph.graph.edges
+        options = [m for m in state.graph.graph.successors(v) if not edges[v, m]["blocked"]]
         if parent is None:
             options.append(v)
-        dist = self._distances_to(u.goal)
+        dist = self._distances_to(state.graph, u.goal)
         nxt = u.route[1] if len(u.route) > 1 else None
         avoid = set(parent.route) if parent is not None else set()
         return sorted(
             options,
             key=lambda m: (
                 dist.get(m, math.inf),
-                self.table.holder(m) not in (None, u.uid),
+                state.table.holder(m) not in (None, u.uid),
                 m != nxt,
                 m in avoid,
-                m in self._crossings,
+                m in state.crossings,
                 m,
             ),
         )
 
-    def _distances_to(self, goal: str) -> dict[str, float]:
+    def _distances_to(self, graph: LaneGraph, goal: str) -> dict[str, float]:
         """Least weight [m] from every node to ``goal`` over unblocked edges (cached per
         graph version)."""
         cached = self._dist_cache.get(goal)
-        if cached is not None and cached[0] == self.graph.version:
+        if cached is not None and cached[0] == graph.version:
             return cached[1]
 
         def weight(a: str, b: str, d: dict) -> float | None:
             return None if d["blocked"] else d["weight"]
 
-        reverse = self.graph.graph.reverse(copy=False)
+        reverse = graph.graph.reverse(copy=False)
         dist = nx.single_source_dijkstra_path_length(reverse, goal, weight=weight)
-        self._dist_cache[goal] = (self.graph.version, dist)
+        self._dist_cache[goal] = (graph.version, dist)
         return dist
 
-    def _pibt_grant(self, tick: _Tick, u: _Unit, m: str, parent: _Unit | None) -> None:
+    def _pibt_grant(
+        self, state: CoordinationState, tick: Tick, u: Unit, m: str, parent: Unit | None
+    ) -> None:
         """Grant ``u`` the edge to ``m``, with a new route when ``m`` is off its route."""
         v = u.route[0]
-        if self._standing(u):
-            if self._parked.get(v) == u.uid:  # a parked unit parks where it is pushed
-                del self._parked[v]
+        if u.standing:
+            if state.parked.get(v) == u.uid:  # a parked unit parks where it is pushed
+                del state.parked[v]
                 u.goal = m
-            path = self._plan(m, u.goal) or [m]
+            path = state.plan(m, u.goal) or [m]
             u.route = [v, *path]
         elif u.route[1] != m:
-            path = self._plan(m, u.goal) or [m]
+            path = state.plan(m, u.goal) or [m]
             u.route = [v, *path]
             why = f"pushed by {parent.uid}" if parent else "its next node is taken"
-            self._say(tick, u, "reroute", "pibt", f"via {m}: {why}")
+            state.say(tick, u, Action.REROUTE, Cause.PIBT, f"via {m}: {why}")
         if parent is None:
-            self._grant(tick, u, m, "grant", "route", f"{v} -> {m}")
+            state.grant(tick, u, m, Action.GRANT, Cause.ROUTE, f"{v} -> {m}")
         else:
             detail = f"{v} -> {m}: out of the way of {parent.uid} (priority inheritance)"
-            self._grant(tick, u, m, "back_off", "inherit", detail, (parent.uid,))
+            state.grant(tick, u, m, Action.BACK_OFF, Cause.INHERIT, detail, (parent.uid,))
 
-    def _pibt_wait(self, tick: _Tick, u: _Unit, m: str, blockers: tuple[str, ...]) -> None:
+    def _pibt_wait(
+        self, state: CoordinationState, tick: Tick, u: Unit, m: str, blockers: tuple[str, ...]
+    ) -> None:
         """Record that ``u`` waits at its node for ``m`` (when what it waits for changes)."""
         if blockers == u.waiting:
             return
@@ -233,10 +260,10 @@ class Pibt:
             u.wait_since = tick.now
         u.waiting = blockers
         cur = u.route[0]
-        holder = self.table.holder(m)
+        holder = state.table.holder(m)
         if holder is not None and holder != u.uid:
-            cause, detail = "node_held", f"node {m} is held by {holder}"
+            cause, detail = Cause.NODE_HELD, f"node {m} is held by {holder}"
         else:
             who = ", ".join(blockers)
-            cause, detail = "lane_held", f"the way to {m} is held or claimed by {who}"
-        self._say(tick, u, "wait", cause, detail, edge=(cur, m), waiting_for=blockers)
+            cause, detail = Cause.LANE_HELD, f"the way to {m} is held or claimed by {who}"
+        state.say(tick, u, Action.WAIT, cause, detail, edge=(cur, m), waiting_for=blockers)

@@ -139,7 +139,7 @@ class Drive:
         self.coord, self.dt, self.speed = coord, dt, speed
         self.positions: dict[str, tuple[float, float]] = {}
         self.now = 0.0
-        self.min_gap = coord.clear_m - coord.arrive_tol - 1e-9
+        self.min_gap = coord.settings.clear_m - coord.settings.arrive_tol - 1e-9
         self.moved: dict[str, list[float]] = {}
 
     def add(self, uid: str, start: str, goal: str, priority: float = 0.0) -> None:

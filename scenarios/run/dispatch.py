@@ -26,9 +26,9 @@ import networkx as nx
 from planner.lane_graph import LaneGraph
 from planner.reservations import unit_order
 from scenarios.run.trip_queue import TripQueue
+from scenarios.spec.coordination import DISPATCH_RULES as RULES
 from scenarios.spec.tasks import Task
 
-RULES = ("first", "nearest")
 LOOK_AHEAD = 64
 """How many trips of the stream are read ahead of their release (not counting those to a
 held goal)."""

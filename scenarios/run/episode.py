@@ -9,8 +9,9 @@ with the same seed are identical step for step. Each ``step``:
    tick's scans go to the map server (acknowledged before any map read, so runs are
    deterministic for a seed);
 2. every ``map_read_s`` [s] the units read the shared costmap (``GET /v1/costmap``,
-   raw); every ``lane_refresh_s`` the lane coordinator re-reads lane costs
-   (``POST /v1/query/segments``);
+   raw); every ``coordination.lane_refresh_s`` of the scenario the lane coordinator
+   re-reads lane costs (``coordination.lanes_from``: worked out on that costmap, or a
+   ``POST /v1/query/segments``);
 3. the coordinator takes the units' positions and grants lanes; breakdowns start; a trip
    that has had no route too long goes back to the queue (``scenarios.run.trip_queue``);
    released trips go to idle units (``scenarios.run.dispatch``); each unit's agent plans on
@@ -41,6 +42,7 @@ from mapserver.client import Grid, MapClient
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 from planner.coordinator import LaneCoordinator
+from planner.decisions import Action
 from planner.freeze import TruthLanes, classify
 from planner.grid_search import GridPlanner
 from planner.lane_graph import LaneGraph, SegmentQuerier
@@ -58,41 +60,25 @@ from scenarios.score.incidents import collision_counts
 from scenarios.score.map_truth import summary as map_truth_summary
 from scenarios.score.metric_registry import check_run_metrics
 from scenarios.score.truth_timeline import truth_timeline
+from scenarios.spec.coordination import CoordinationSpec
 from scenarios.spec.scenario import Scenario
 from scenarios.spec.tasks import Task
 
 POSTS_IN_FLIGHT = 4  # ticks of scans on their way to the server while the sim steps on
 CLOCK_EVERY_S = 1.0  # [s] of sim time between declarations of its clock (docs/map-time.md)
-RESERVE_MARGIN_M = 1.0
-"""[m] how much earlier than its braking distance a unit asks for its next lanes."""
 
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How a run is observed: map_read_s, lane_refresh_s [s] between reads; what the
+    """How a run is observed: map_read_s [s] between the units' costmap reads; what the
     replay keeps: unit poses every ``record_units_s`` [s], scans every ``record_scans_s``
-    [s] per unit, grids every ``record_grids_s`` [s]. How the fleet is coordinated:
-    lanes split every ``segment_m`` [m] (None: junction to junction) so units can follow
-    one another; ``reserve_ahead``: units are granted their next lanes before they
-    reach the end of the one they drive (False: one lane at a time, on arrival);
-    ``dispatch``: which idle unit gets a released trip (``scenarios.run.dispatch.RULES``);
-    ``lanes_from``: where the coordinator reads lane costs: "costmap", the costmap the
-    fleet last read (``CostmapSegments``), or "server", a ``POST /v1/query/segments``
-    per refresh."""
-
-    def __post_init__(self) -> None:
-        if self.lanes_from not in ("costmap", "server"):
-            raise ValueError(f"lanes_from must be 'costmap' or 'server', got {self.lanes_from!r}")
+    [s] per unit, grids every ``record_grids_s`` [s]. How the fleet is coordinated is the
+    scenario's ``coordination`` section (``scenarios.spec.coordination``)."""
 
     map_read_s: float = 0.5
-    lane_refresh_s: float = 1.0
     record_units_s: float = 0.5
     record_scans_s: float = 0.5
     record_grids_s: float = 5.0
-    segment_m: float | None = 4.0
-    reserve_ahead: bool = True
-    dispatch: str = "nearest"
-    lanes_from: str = "costmap"
 
 
 @dataclass(frozen=True)
@@ -178,9 +164,10 @@ class Episode:
             unit_positions,
         )
         self.sim = FleetSim(world, units, seed=setup.seed, poster=self.poster)
-        self.graph = graph = setup.build_lane_graph(segment_m=opts.segment_m)
-        lanes = CostmapSegments(self) if opts.lanes_from == "costmap" else self.client
-        self.coordinator = coordinator = _coordinator(graph, lanes, units, opts, setup.coordination)
+        plan = setup.coordination
+        self.graph = graph = setup.build_lane_graph(segment_m=plan.segment_m)
+        lanes = CostmapSegments(self) if plan.lanes_from == "costmap" else self.client
+        self.coordinator = coordinator = _coordinator(graph, lanes, units, plan)
         planner = GridPlanner(self.geometry)
         reroute = _rerouter(coordinator, graph)
         self.agents = {
@@ -205,11 +192,11 @@ class Episode:
             self.sim.schedule(change.time, self._recording(change))
         self._breakdowns = list(setup.breakdowns())
         queue = TripQueue(graph, setup.tasks.retry_after)
-        self.dispatcher = Dispatcher(setup.task_stream(), graph, opts.dispatch, queue)
+        self.dispatcher = Dispatcher(setup.task_stream(), graph, plan.dispatch, queue)
         self.returns = ReturnWatch(setup.tasks.return_after, graph, self.geometry)
         self.costs: Grid | None = None
         self._map_reads = Schedule(opts.map_read_s)
-        self._lane_reads = Schedule(opts.lane_refresh_s)
+        self._lane_reads = Schedule(plan.lane_refresh_s)
         self.standard = StandardObservers.of(self)
         self.observers = (*self.standard.all(), *self._extra)
         self._observer_schedules = [Schedule(o.every_s) for o in self.observers]
@@ -255,7 +242,7 @@ class Episode:
         if self._map_reads.due(now):  # due at the first step
             self.costs = self.synced().costmap()
         if self._lane_reads.due(now):
-            if self.options.lanes_from == "server":
+            if self.setup.coordination.lanes_from == "server":
                 self.synced()
             self.coordinator.refresh(now)
         self.coordinator.tick(now, positions)
@@ -372,7 +359,7 @@ class Episode:
         replans = sum(
             1 for a in self.agents.values() for act in a.navigator.actions
             if act.action in ("replan", "reroute")
-        ) + sum(1 for d in self.coordinator.log if d.action == "reroute")  # fmt: skip
+        ) + sum(1 for d in self.coordinator.log if d.action is Action.REROUTE)  # fmt: skip
         throughput = self.standard.throughput.tracker
         metrics = {
             "scenario": self.setup.name,
@@ -415,16 +402,16 @@ def _xy(pose) -> tuple[float, float]:
 
 
 def _coordinator(
-    graph: LaneGraph, client: SegmentQuerier, units, opts: RunOptions, policy: str
+    graph: LaneGraph, client: SegmentQuerier, units, plan: CoordinationSpec
 ) -> LaneCoordinator:
-    """The run's lane coordinator under ``policy`` (the scenario's ``coordination``): a
-    node is left once a unit's body is clear of it, and with ``opts.reserve_ahead`` units
-    ask for their next lanes a braking distance (plus ``RESERVE_MARGIN_M``) before the
-    end of what they hold."""
-    clear_m = 2.0 * max(spec.drive.radius for spec in units) + 0.2
+    """The run's lane coordinator as the scenario's ``coordination`` says; by default a
+    node is left once a unit's body is clear of it, and units ask for their next lanes a
+    braking distance (plus a margin) before the end of what they hold
+    (``CoordinationSpec.settings``)."""
+    radius = max(spec.drive.radius for spec in units)
     braking_m = max(spec.drive.max_speed**2 / (2 * spec.drive.max_accel) for spec in units)
-    ahead_m = braking_m + RESERVE_MARGIN_M if opts.reserve_ahead else 0.0
-    return LaneCoordinator(graph, client, clear_m=clear_m, reserve_ahead_m=ahead_m, policy=policy)
+    settings = plan.settings(radius, braking_m)
+    return LaneCoordinator(graph, client, policy=plan.policy, settings=settings)
 
 
 def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:

@@ -253,7 +253,7 @@ class Throughput(_Observer):
 
     def __init__(self, episode: Episode) -> None:
         self.tracker = ThroughputTracker(
-            episode.graph, episode.setup.dt, episode.coordinator.arrive_tol
+            episode.graph, episode.setup.dt, episode.coordinator.settings.arrive_tol
         )
 
     def observe(self, episode: Episode) -> None:

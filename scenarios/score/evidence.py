@@ -13,8 +13,13 @@ import numpy as np
 
 from fleet.ground_truth import GroundTruth
 from planner.coordinator import LaneCoordinator
+from planner.decisions import Action
 from planner.freeze import Freeze
 from scenarios.run.record import BlockingCell, FreezeRecord, RecoveryStep
+
+TRAFFIC = frozenset({Action.ROUTE, Action.GRANT, Action.WAIT, Action.ARRIVED})
+"""Coordinator actions of ordinary traffic, not recovery: a freeze's evidence leaves
+them out."""
 
 # (unit_id, point) -> (stamp [s] read, mapserver.client.CellOut), or a list of such
 # readings (one per freeze that named the point; the one read during a freeze is its)
@@ -114,6 +119,6 @@ def _recovery(freeze: Freeze, agent, coordinator: LaneCoordinator) -> tuple[Reco
         for d in coordinator.log
         if d.unit == freeze.unit_id
         and freeze.start <= d.time <= freeze.end
-        and d.action not in ("route", "grant", "wait", "arrived")
+        and d.action not in TRAFFIC
     ]
     return tuple(sorted(steps, key=lambda s: s.stamp))

@@ -48,7 +48,7 @@ from mapserver.service.settings import Settings
 from mapserver.service.validation import Section, domain_section, number, reworded, text
 from planner.lane_graph import LaneGraph
 from planner.navigator import RecoveryConfig
-from scenarios.spec.coordination import DEFAULT_COORDINATION, CoordinationFields
+from scenarios.spec.coordination import CoordinationFields, CoordinationSpec
 from scenarios.spec.events import (
     BreakdownEvent,
     DropEvent,
@@ -143,7 +143,8 @@ class Scenario:
     duration: [s] sim time of a run; dt: [s] sim step; seed: the run's seed (sim, LiDAR
     noise and trips; not the layout). layout: the world at t = 0. one_way: (junction_a,
     junction_b) lanes driven only a -> b. events: sorted by ``at`` (ties in file order).
-    source: the file it was loaded from ("" if none).
+    coordination: how the fleet is coordinated (``scenarios.spec.coordination``). source:
+    the file it was loaded from ("" if none).
     """
 
     name: str
@@ -159,7 +160,7 @@ class Scenario:
     tasks: TaskSpec = field(default_factory=TaskSpec)
     events: tuple[Event, ...] = ()
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
-    coordination: str = DEFAULT_COORDINATION
+    coordination: CoordinationSpec = field(default_factory=CoordinationSpec)
     source: str = ""
 
     @property
@@ -381,7 +382,7 @@ def _scenario(doc: Document, default_name: str) -> Scenario:
         tasks=tasks,
         events=events,
         recovery=top.recovery.build(),
-        coordination=top.coordination.policy,
+        coordination=top.coordination.build(),
         source=doc.source,
     )
 

@@ -40,6 +40,7 @@ from fleet.boxworld import warehouse_layout
 from mapserver.client import SegmentOut
 from mapserver.core.costvalues import LETHAL
 from planner.coordinator import LaneCoordinator
+from planner.decisions import Action, Cause
 from planner.lane_graph import Lane, LaneGraph
 
 
@@ -173,7 +174,7 @@ def main() -> None:
         elapsed = (time.perf_counter() - t0) * 1e3
         if step >= warmup:
             tick_ms.append(elapsed)
-            tasks += sum(d.action == "arrived" and d.cause == "goal" for d in decisions)
+            tasks += sum(d.action is Action.ARRIVED and d.cause is Cause.GOAL for d in decisions)
 
     waiting = [u for u in coord.unit_ids if coord.status(u).state in ("waiting", "stranded")]
     figures = {

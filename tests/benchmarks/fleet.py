@@ -9,14 +9,18 @@ Each scenario (default: ``scenarios/static_shift.yaml``, ``scenarios/moved_pod.y
 in this process with ``scenarios.run.runner.run`` (its own embedded map server each
 time, the scenario's seed), once per lane coordinator:
 
-- ``edge-by-edge``: ``RunOptions(segment_m=None, reserve_ahead=False)``, the coordinator
-  as it was: lanes run junction to junction (stops included) and a unit is granted one
-  lane at a time, when it arrives at the lane's tail;
-- ``reserve-ahead``: ``RunOptions()`` (the defaults): lanes split every 4 m so units can
-  follow one another, and a unit asks for its next lanes a braking distance (plus
-  ``RESERVE_MARGIN_M``) before the end of what it holds (``scenarios.run.runner._coordinator``);
-- ``pibt``: as ``reserve-ahead``, with the scenario's ``coordination.policy`` set to
-  ``pibt`` (``planner.policy_pibt``: priority inheritance with backtracking).
+- ``edge-by-edge``: ``coordination: {policy: reserve_ahead, segment_m: null,
+  reserve_ahead_m: 0}``, the coordinator as it was: lanes run junction to junction
+  (stops included) and a unit is granted one lane at a time, when it arrives at the
+  lane's tail;
+- ``reserve-ahead``: ``coordination: {policy: reserve_ahead}`` with the file's lane split
+  and reach (by default lanes split every 4 m so units can follow one another, and a
+  unit asks for its next lanes a braking distance plus ``RESERVE_MARGIN_M`` before the
+  end of what it holds: ``scenarios.spec.coordination.CoordinationSpec.settings``);
+- ``pibt``: as ``reserve-ahead``, with ``coordination.policy`` set to ``pibt``
+  (``planner.policy_pibt``: priority inheritance with backtracking).
+
+The rest of the file's ``coordination`` section (dispatch, lane refresh, ...) is kept.
 
 ``--one-way aisles`` (or ``loops``, ``scenarios.spec.layout.ONE_WAY_PATTERNS``) runs each
 scenario whose file sets no ``layout.one_way`` a second time with that traffic pattern,
@@ -66,17 +70,17 @@ import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
 from scenarios.run.record import RunRecord, UnitSample  # noqa: E402
-from scenarios.run.runner import RunOptions, run  # noqa: E402
+from scenarios.run.runner import run  # noqa: E402
 from scenarios.spec.layout import ONE_WAY_PATTERNS  # noqa: E402
 from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
 ROOT = HERE.parents[1]
 DEFAULT = ("static_shift.yaml", "moved_pod.yaml", "busy_shift.yaml")
 FLOORS = HERE / "floors"
-COORDINATORS = {  # name -> (run options, the scenario's coordination policy)
-    "edge-by-edge": (RunOptions(segment_m=None, reserve_ahead=False), "reserve_ahead"),
-    "reserve-ahead": (RunOptions(), "reserve_ahead"),
-    "pibt": (RunOptions(), "pibt"),
+COORDINATORS = {  # name -> what it sets in the scenario's coordination section
+    "edge-by-edge": {"policy": "reserve_ahead", "segment_m": None, "reserve_ahead_m": 0.0},
+    "reserve-ahead": {"policy": "reserve_ahead"},
+    "pibt": {"policy": "pibt"},
 }
 STILL_M = 0.05  # [m] a unit that stays this close to where it stood has not moved
 
@@ -305,9 +309,9 @@ def main() -> None:
         if args.duration is not None:
             scenario = dataclasses.replace(scenario, duration=args.duration)
         for name in coordinators:
-            options, policy = COORDINATORS[name]
             t0 = time.perf_counter()
-            record = run(dataclasses.replace(scenario, coordination=policy), options=options)
+            coordination = dataclasses.replace(scenario.coordination, **COORDINATORS[name])
+            record = run(dataclasses.replace(scenario, coordination=coordination))
             rows.append(row(scenario, name, record, time.perf_counter() - t0))
             print(line(rows[-1]), flush=True)
             if args.one_way is None or scenario.one_way:
@@ -315,7 +319,7 @@ def main() -> None:
             two_way = rows[-1]
             patterned = with_one_way(scenario, args.one_way)
             t0 = time.perf_counter()
-            record = run(dataclasses.replace(patterned, coordination=policy), options=options)
+            record = run(dataclasses.replace(patterned, coordination=coordination))
             rows.append(row(patterned, name, record, time.perf_counter() - t0, two_way))
             print(line(rows[-1]), flush=True)
     if args.json:

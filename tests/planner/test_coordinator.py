@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from lane_helpers import Drive, FakeMap, grid_graph, pocket_graph, warehouse_graph
 
 from fleet.boxworld import BoxWorld, Warehouse
-from planner.coordinator import ACTIONS, LaneCoordinator
+from planner.coordinator import ACTIONS, CoordinatorSettings, LaneCoordinator
+from planner.decisions import Action, Cause
 from planner.lane_graph import LaneGraph
 from planner.reservations import unit_order
 
@@ -36,9 +37,9 @@ def test_two_units_swapping_the_ends_of_a_lane_both_arrive():
     assert coord.status("u1").node == "n1_0" and coord.status("u2").node == "n0_0"
     assert coord.deadlocks == 1
     # Equal priority: the larger id gives way, and the record says why.
-    (gave_way,) = actions(coord, "u2", "reroute", "deadlock")
+    (gave_way,) = actions(coord, "u2", Action.REROUTE, Cause.DEADLOCK)
     assert gave_way.waiting_for == ("u1", "u2") and "u2 -> u1" in gave_way.detail
-    assert not actions(coord, "u1", "reroute") and not actions(coord, "u1", "back_off")
+    assert not actions(coord, "u1", Action.REROUTE) and not actions(coord, "u1", Action.BACK_OFF)
 
 
 def test_the_lower_priority_unit_gives_way():
@@ -47,7 +48,8 @@ def test_the_lower_priority_unit_gives_way():
     drive.add("u1", "n0_0", "n1_0", priority=0)
     drive.add("u2", "n1_0", "n0_0", priority=5)
     assert drive.run(100) is not None
-    assert actions(coord, "u1", "reroute", "deadlock") and not actions(coord, "u2", "reroute")
+    assert actions(coord, "u1", Action.REROUTE, Cause.DEADLOCK)
+    assert not actions(coord, "u2", Action.REROUTE)
 
 
 def test_a_swap_in_a_corridor_with_a_pocket_backs_off_into_it():
@@ -59,14 +61,14 @@ def test_a_swap_in_a_corridor_with_a_pocket_backs_off_into_it():
     drive.add("u1", "a", "c")
     drive.add("u2", "c", "a")
     waits = drive.step()
-    assert {(d.unit, d.cause) for d in waits if d.action == "wait"} == {
-        ("u1", "exit_held"),
-        ("u2", "exit_held"),
+    assert {(d.unit, d.cause) for d in waits if d.action is Action.WAIT} == {
+        ("u1", Cause.EXIT_HELD),
+        ("u2", Cause.EXIT_HELD),
     }
     assert drive.run(200) is not None
     assert [coord.status(u).node for u in ("u1", "u2")] == ["c", "a"]
     assert coord.deadlocks == 1
-    (back_off,) = actions(coord, "u2", "back_off", "deadlock")
+    (back_off,) = actions(coord, "u2", Action.BACK_OFF, Cause.DEADLOCK)
     assert back_off.edge == ("c", "b") and back_off.route[:3] == ("c", "b", "p")
     assert back_off.waiting_for == ("u1", "u2")
 
@@ -80,7 +82,7 @@ def test_four_units_around_a_square_each_wanting_the_next_ones_node_all_arrive()
     assert drive.run(200) is not None
     assert [coord.status(f"u{k + 1}").node for k in range(4)] == ring[1:] + ring[:1]
     assert coord.deadlocks == 1
-    broke = [d for d in coord.log if d.cause == "deadlock"]
+    broke = [d for d in coord.log if d.cause is Cause.DEADLOCK]
     assert broke[0].unit == "u4" and broke[0].waiting_for == ("u1", "u2", "u3", "u4")
 
 
@@ -94,7 +96,7 @@ def test_an_idle_unit_in_the_way_moves_aside():
     drive.add("u1", "b", "b")  # parked on the only way from a to c
     drive.add("u2", "a", "c")
     assert drive.run(100) is not None
-    (aside,) = actions(coord, "u1", "back_off", "clear_way")
+    (aside,) = actions(coord, "u1", Action.BACK_OFF, Cause.CLEAR_WAY)
     assert aside.edge == ("b", "p") and aside.waiting_for == ("u2",)
     assert coord.status("u1").node == "p" and coord.status("u2").node == "c"
 
@@ -120,8 +122,8 @@ def test_units_follow_one_another_through_a_corridor():
             together += 1
     assert together > 10  # both driving the corridor at once, one lane apart
     assert [coord.status(u).node for u in ("u1", "u2")] == ["j1_0", "w0_0h7"]
-    claims = [r for r in coord.log if r.action == "wait"]
-    assert all(d.cause == "node_held" for d in claims)  # u2 only ever waited behind u1
+    claims = [r for r in coord.log if r.action is Action.WAIT]
+    assert all(d.cause is Cause.NODE_HELD for d in claims)  # u2 only ever waited behind u1
 
 
 def test_units_never_meet_head_on_in_a_corridor():
@@ -131,7 +133,7 @@ def test_units_never_meet_head_on_in_a_corridor():
     drive.step()  # u1 enters the corridor heading east ...
     drive.add("u2", "j1_0", "w0_0h2")
     (wait,) = [d for d in drive.step() if d.unit == "u2"]
-    assert (wait.action, wait.cause, wait.waiting_for) == ("wait", "lane_held", ("u1",))
+    assert (wait.action, wait.cause, wait.waiting_for) == (Action.WAIT, Cause.LANE_HELD, ("u1",))
     assert coord.status("u2").node == "j1_0"  # ... so u2 may not enter it heading west
     while coord.status("u1").state == "moving":
         assert coord.status("u2").node == "j1_0"
@@ -139,7 +141,7 @@ def test_units_never_meet_head_on_in_a_corridor():
     # u1 parked inside: it no longer claims the corridor; u2 comes in and pushes it on.
     assert drive.run(200) is not None
     assert coord.status("u2").node == "w0_0h2"
-    assert actions(coord, "u1", "back_off", "clear_way")
+    assert actions(coord, "u1", Action.BACK_OFF, Cause.CLEAR_WAY)
 
 
 # ---------------------------------------------------------------- blocked lanes
@@ -158,7 +160,7 @@ def test_a_unit_whose_route_becomes_blocked_is_rerouted():
     assert coord.status("u1").route == ("n1_0", "n1_1", "n1_2")
     decisions = block(coord, fake, drive.now, (3.0, 4.5))  # on n1_1 - n1_2
     (rerouted,) = [d for d in decisions if d.unit == "u1"]
-    assert (rerouted.action, rerouted.cause) == ("reroute", "lane_blocked")
+    assert (rerouted.action, rerouted.cause) == (Action.REROUTE, Cause.LANE_BLOCKED)
     assert "n1_1-n1_2" in rerouted.detail and ("n1_1", "n1_2") not in zip(
         rerouted.route, rerouted.route[1:], strict=False
     )
@@ -175,9 +177,10 @@ def test_a_unit_on_a_lane_blocked_ahead_of_it_turns_back():
     assert coord.status("u1").edge == ("n1_0", "n1_1")
     decisions = block(coord, fake, drive.now, (3.0, 2.0))  # 2 m up: ahead of it
     turn, reverse = decisions
-    assert (turn.action, turn.cause, turn.edge) == ("reroute", "lane_blocked", ("n1_1", "n1_0"))
+    assert (turn.action, turn.cause) == (Action.REROUTE, Cause.LANE_BLOCKED)
+    assert turn.edge == ("n1_1", "n1_0")
     assert "ahead" in turn.detail
-    assert (reverse.action, reverse.edge) == ("grant", ("n1_1", "n1_0"))
+    assert (reverse.action, reverse.edge) == (Action.GRANT, ("n1_1", "n1_0"))
     status = coord.status("u1")
     assert status.target == "n1_0" and coord.holder("n1_1") is None
     assert coord.holder("n1_0") == "u1"
@@ -200,7 +203,7 @@ def test_a_unit_already_past_the_block_carries_on():
     for _ in range(5):
         drive.step()  # 2 m up n1_0 -> n1_1
     (decision,) = block(coord, fake, drive.now, (3.0, 1.0))  # behind it
-    assert (decision.action, decision.cause) == ("reroute", "lane_blocked")
+    assert (decision.action, decision.cause) == (Action.REROUTE, Cause.LANE_BLOCKED)
     assert "carrying on" in decision.detail
     assert coord.status("u1").target == "n1_1"
     assert drive.run(100) is not None and coord.status("u1").node == "n1_2"
@@ -226,14 +229,14 @@ def test_a_unit_that_cannot_turn_back_waits_on_the_lane_for_its_start():
     status = coord.status("u1")
     assert status.state == "stranded" and status.target is None
     assert status.waiting_for == ("u2",)
-    assert actions(coord, "u1", "wait", "lane_blocked")
+    assert actions(coord, "u1", Action.WAIT, Cause.LANE_BLOCKED)
     coord.request("u2", "b", "a", 0, drive.now)  # u2 leaves: u1 can go back ...
     for _ in range(40):
         drive.step()
     assert coord.status("u2").node == "a"
     status = coord.status("u1")  # ... to b, where it has no route to c
     assert (status.node, status.state) == ("b", "no_route")
-    assert actions(coord, "u1", "grant", "lane_blocked")[0].edge == ("c", "b")
+    assert actions(coord, "u1", Action.GRANT, Cause.LANE_BLOCKED)[0].edge == ("c", "b")
 
 
 def test_with_no_route_a_unit_waits_until_a_lane_clears():
@@ -242,12 +245,12 @@ def test_with_no_route_a_unit_waits_until_a_lane_clears():
     drive = Drive(coord)
     block(coord, fake, drive.now, (1.5, 0.0))
     drive.add("u1", "n0_0", "n1_0")
-    assert actions(coord, "u1", "wait", "no_route")
+    assert actions(coord, "u1", Action.WAIT, Cause.NO_ROUTE)
     for _ in range(10):
         drive.step()
     assert coord.status("u1").state == "no_route" and drive.positions["u1"] == (0.0, 0.0)
     block(coord, fake, drive.now)
-    assert actions(coord, "u1", "reroute", "lane_cleared")
+    assert actions(coord, "u1", Action.REROUTE, Cause.LANE_CLEARED)
     assert drive.run(50) is not None
 
 
@@ -341,7 +344,7 @@ POLICY_CASES = [(0.0, "reserve_ahead"), (2.0, "reserve_ahead"), (0.0, "pibt"), (
 @given(scenario=scenarios())
 def test_the_coordinator_never_grants_conflicting_lanes(scenario, reserve_ahead_m, policy):
     coord = play(scenario, reserve_ahead_m, policy)
-    assert all(d.action in ACTIONS for d in coord.log)
+    assert all(d.action in ACTIONS and isinstance(d.cause, Cause) for d in coord.log)
 
 
 @pytest.mark.parametrize(("reserve_ahead_m", "policy"), POLICY_CASES)
@@ -373,6 +376,10 @@ def test_requests_are_checked_and_name_the_bad_value():
         coord.refresh(2.0)
     with pytest.raises(ValueError, match="clear_m must be a positive"):
         LaneCoordinator(grid_graph(2, 2), clear_m=0.0)
+    with pytest.raises(ValueError, match="back_off_hops must be an integer >= 1, got 0"):
+        LaneCoordinator(grid_graph(2, 2), back_off_hops=0)
+    with pytest.raises(ValueError, match="give settings or clear_m, not both"):
+        LaneCoordinator(grid_graph(2, 2), settings=CoordinatorSettings(), clear_m=2.0)
 
 
 def test_reservations_carry_time_windows_and_decisions_serialise():
@@ -384,6 +391,8 @@ def test_reservations_carry_time_windows_and_decisions_serialise():
         "detail": "n0_0 -> n1_0", "edge": ["n0_0", "n1_0"], "waiting_for": [],
         "route": ["n0_0", "n1_0"],
     }  # fmt: skip
+    plain = grant.to_dict()  # the strings of docs/files.md, not the enum members
+    assert type(plain["action"]) is str and type(plain["cause"]) is str
     windows = {(r.kind, r.resource): r for r in coord.reservations()}
     assert windows["lane", ("n0_0", "n1_0")].tail == "n0_0"
     assert windows["lane", ("n0_0", "n1_0")].expected_end == pytest.approx(2.0 + 3.0 / 1.5)
@@ -392,7 +401,7 @@ def test_reservations_carry_time_windows_and_decisions_serialise():
     coord.tick(3.0, {"u1": (1.2, 0.0)})  # clear of n0_0: released
     assert coord.holder("n0_0") is None and coord.holder("n1_0") == "u1"
     (arrived,) = coord.tick(4.0, {"u1": (2.95, 0.0)})
-    assert (arrived.action, arrived.cause) == ("arrived", "goal")
+    assert (arrived.action, arrived.cause) == (Action.ARRIVED, Cause.GOAL)
     assert [r.kind for r in coord.reservations()] == ["node"]
     assert coord.reservations()[0].expected_end == math.inf
 

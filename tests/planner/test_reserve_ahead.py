@@ -6,6 +6,7 @@ from lane_helpers import Drive
 
 from fleet.boxworld import BoxWorld, Warehouse
 from planner.coordinator import LaneCoordinator
+from planner.decisions import Action
 from planner.lane_graph import LaneGraph
 
 SPEED, DT = 1.5, 0.1  # [m/s], [s]
@@ -47,7 +48,7 @@ def test_a_column_follows_one_another_through_a_corridor_without_stopping_at_nod
         uid = f"u{k + 1}"
         assert stops(drive.moved[uid]) == [], uid
         assert coord.status(uid).node == names[-1 - 3 * k]
-    assert not [d for d in coord.log if d.action == "wait"]
+    assert not [d for d in coord.log if d.action is Action.WAIT]
 
 
 def test_two_units_meeting_head_on_in_an_aisle_both_get_through():
