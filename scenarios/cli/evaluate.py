@@ -124,9 +124,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
     bad input with nothing written."""
     try:
         model, decay = sensor_model_from_args(args)
-        peer = with_peer(args.peer)
         recording = open_recording(args.recording, recording_options_from_args(args))
         geometry = grid_from_args(args, recording)
+        peer = with_peer(args.peer)  # its note only once the input is known good
         maps: list[MapUnderTest] = [FleetmapMap(geometry, model, p, decay) for p in args.policies]
         if peer:
             maps.append(OctoMapPeer(geometry, model))
