@@ -79,8 +79,17 @@ CASES = [  # (id, argv with {tmp}, the command in the message, a part of the mes
 ]
 
 
+SIM_COMMANDS = {"run", "compare", "sweep"}
+"""Commands that load the simulator before reading their input: without PyBullet their
+one error line is the simulator's (tests/conftest.py skips ``sim`` tests there)."""
+
+
 @pytest.mark.parametrize(
-    ("argv", "command", "part"), [c[1:] for c in CASES], ids=[c[0] for c in CASES]
+    ("argv", "command", "part"),
+    [
+        pytest.param(*c[1:], id=c[0], marks=[pytest.mark.sim] if c[2] in SIM_COMMANDS else [])
+        for c in CASES
+    ],
 )
 def test_each_commands_input_errors_are_one_line_in_the_style(files, capsys, argv, command, part):
     status = main([a.format(tmp=files) for a in argv])
@@ -139,6 +148,7 @@ def test_a_flag_beats_a_bad_variable_and_is_not_blamed_on_it(tmp_path, monkeypat
     assert load_settings(None, {"port": 8123, "data_dir": tmp_path}).port == 8123
 
 
+@pytest.mark.sim
 def test_run_against_a_server_with_another_grid_says_both_grids_and_the_settings(tmp_path, capsys):
     server = ServerProcess(tmp_path / "data")  # 300 x 200 cells of 0.1 m
     try:

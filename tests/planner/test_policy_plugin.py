@@ -12,7 +12,6 @@ from planner.coordination_state import CoordinationState, CoordinatorSettings, T
 from planner.coordinator import LaneCoordinator
 from planner.decisions import Action, Cause
 from planner.policy import CoordinationPolicy, make_policies, policy_names, register_policy
-from scenarios.run.episode import _coordinator
 from scenarios.spec.scenario import ScenarioError, load_scenario
 
 TINY = Path("scenarios/tiny.yaml")
@@ -85,7 +84,10 @@ def test_the_driver_runs_a_registered_policy_hook_by_hook_in_set_order():
     assert coord.status("u1").node == "n1_0" and coord.status("u2").node == "n2_0"
 
 
+@pytest.mark.sim  # the episode module imports the simulator
 def test_a_scenario_file_selects_the_registered_policy():
+    from scenarios.run.episode import _coordinator
+
     scenario = load_scenario(TINY, {"coordination.policy": "in_order"})
     assert scenario.coordination.policy == "in_order"
     units = scenario.unit_specs()
