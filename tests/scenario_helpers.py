@@ -1,10 +1,11 @@
-"""Helpers for tests that run the tiny scenario: a shorter copy of scenarios/tiny.yaml."""
+"""Helpers for tests that run shipped scenarios: shorter copies of their files."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-TINY = Path(__file__).resolve().parents[1] / "scenarios" / "tiny.yaml"
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+TINY = SCENARIOS / "tiny.yaml"
 
 
 def tiny5(folder: Path, duration: float | None = None) -> Path:
@@ -15,4 +16,17 @@ def tiny5(folder: Path, duration: float | None = None) -> Path:
         text = text.replace("duration: 20.0", f"duration: {duration}")
     path = folder / "tiny5.yaml"
     path.write_text(text)
+    return path
+
+
+def shortened(folder: Path, name: str, duration: float) -> Path:
+    """A copy of shipped scenario ``name`` whose run ends at ``duration`` [s] (its events
+    before then kept), as ``folder/<name>.yaml``: the whole runs take minutes."""
+    lines = [
+        f"duration: {duration}" if ln.startswith("duration:") else ln
+        for ln in (SCENARIOS / f"{name}.yaml").read_text(encoding="utf-8").splitlines()
+    ]
+    assert f"duration: {duration}" in lines
+    path = folder / f"{name}.yaml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

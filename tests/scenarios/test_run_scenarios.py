@@ -2,12 +2,12 @@
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import httpx
 import pytest
 from conftest import make_scan
 from mcap.reader import make_reader
+from scenario_helpers import shortened
 
 from mapserver.client import MapClient
 from scenarios.cli.main import main
@@ -16,7 +16,6 @@ from scenarios.run.embedded_server import EmbeddedServer
 from scenarios.score.metric_registry import REGISTRY
 from scenarios.spec.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[2]
 TINY = "scenarios/tiny.yaml"
 CONTRACT_KEYS = {
     "scenario", "policy", "seed", "units", "sim_seconds", "wall_seconds", "tasks_completed",
@@ -128,23 +127,10 @@ def test_every_shipped_scenario_runs_to_completion(tmp_path, name):
     assert record.metrics["scans_fused"] > 0
 
 
-def shortened(tmp_path, name: str, duration: float) -> str:
-    """A copy of shipped scenario ``name`` whose run ends at ``duration`` [s] (its events
-    before then kept): the whole runs take minutes."""
-    text = (ROOT / "scenarios" / f"{name}.yaml").read_text(encoding="utf-8")
-    lines = [
-        f"duration: {duration}" if ln.startswith("duration:") else ln for ln in text.splitlines()
-    ]
-    assert f"duration: {duration}" in lines
-    path = tmp_path / f"{name}.yaml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return str(path)
-
-
 def test_a_pod_moved_out_of_a_dead_end_makes_a_phantom_freeze_under_sticky(tmp_path):
     """The pod moves at 60 s; the run ends at 110 s, with units frozen at its old place."""
     scenario_out = tmp_path / "moved"
-    path = shortened(tmp_path, "moved_pod", 110.0)
+    path = str(shortened(tmp_path, "moved_pod", 110.0))
     assert main(["run", path, "--policy", "sticky", "--out", str(scenario_out), "--json"]) == 0
     metrics = json.loads((scenario_out / "metrics.json").read_text())
     freezes = json.loads((scenario_out / "freezes.json").read_text())
@@ -166,7 +152,7 @@ def test_a_pod_moved_out_of_a_dead_end_makes_a_phantom_freeze_under_sticky(tmp_p
 def test_a_dropped_tote_never_removed_is_a_true_block_never_a_phantom(tmp_path):
     """The tote drops at 30 s; the run ends at 90 s."""
     out = tmp_path / "tote"
-    path = shortened(tmp_path, "dropped_tote", 90.0)
+    path = str(shortened(tmp_path, "dropped_tote", 90.0))
     assert main(["run", path, "--out", str(out), "--json"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["true_block_freezes"] >= 1
