@@ -32,7 +32,11 @@ def test_the_commands_have_xy_options():
     assert ("evaluate", "--fixed-sensor") in names
 
 
-@pytest.mark.parametrize("path, option, kind", OPTIONS, ids=lambda v: str(v))
+@pytest.mark.parametrize(
+    "path, option, kind",
+    OPTIONS,
+    ids=[f"{' '.join(path)} {option}" for path, option, _ in OPTIONS],
+)
 def test_negative_values_are_read_as_written(path, option, kind, tmp_path):
     value = "-12,-25" if kind is xy_pair else "-12,-25,-1.5"
     positional = {
