@@ -58,7 +58,7 @@ sorted order of node ids and lane keys: the same graph gives the same routes.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence, Set
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -289,6 +289,12 @@ class LaneGraph:
             raise ValueError("the lane graph has no nodes")
         d2 = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
         return self.nodes[int(np.argmin(d2))]  # nodes are sorted; argmin takes the first
+
+    def nearest_free_node(self, x: float, y: float, taken: Set[str]) -> str | None:
+        """The node nearest to (x, y) [m] that is not in ``taken`` (ties: the smallest node
+        id); None when every node is taken."""
+        free = [n for n in self.nodes if n not in taken]
+        return min(free, key=lambda n: (math.dist(self.position(n), (x, y)), n), default=None)
 
     def shortest_route(
         self,

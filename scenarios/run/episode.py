@@ -27,7 +27,6 @@ the metrics of docs/files.md into the ``RunRecord``.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -418,8 +417,8 @@ def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, positi
     """Where a unit's trip starts: the node it stands at or drives to (None: stranded on a
     lane); a unit the coordinator does not know yet is at the nearest node nobody holds."""
     if not coordinator.knows(uid):  # the nearest node nobody holds
-        free = [n for n in graph.nodes if coordinator.holder(n) is None]
-        return min(free, key=lambda n: (math.dist(graph.position(n), position), n), default=None)
+        held = {n for n in graph.nodes if coordinator.holder(n) is not None}
+        return graph.nearest_free_node(*position, held)
     status = coordinator.status(uid)
     return status.node or status.target
 

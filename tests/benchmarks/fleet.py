@@ -24,8 +24,9 @@ The rest of the file's ``coordination`` section (dispatch, lane refresh, ...) is
 
 ``--one-way aisles`` (or ``loops``, ``scenarios.spec.layout.ONE_WAY_PATTERNS``) runs each
 scenario whose file sets no ``layout.one_way`` a second time with that traffic pattern,
-right after it (row ``<name>+aisles``); that row's ``bound`` is the two-way run's, so its
-``of bnd`` counts its trips against what the two-way floor allows.
+right after it (row ``<name>+aisles``); that row's ``bound`` and ``free`` are the two-way
+run's, so its ``of bnd`` and ``of free`` count its trips against what the two-way floor
+allows.
 
 Only the coordinator differs: both runs use the same drive controller (regulated pure
 pursuit), the same navigator (A* on the shared costmap, line-of-sight shortcuts,
@@ -36,12 +37,11 @@ Printed, one row per (scenario, coordinator): ``trips`` (``tasks_completed``), `
 (the congestion-free bound on trips: the trips released within the run, capped by
 ``units x sim_seconds / ideal_trip_s``, the trips each unit could drive back to back
 alone at the run's mean ideal trip time, trips under way at the end counted as
-fractions), ``of bnd`` (trips / bound), ``sched`` (the trips a congestion-free fleet
-completes by the end: each released trip, in release order, given to the unit that
-would finish it first, started when both are ready and driven in the mean ideal trip time, paused
-while its unit is broken down; whole trips only, and no trip before its release:
-``scheduled_trip_bound``), ``of sch`` (trips / sched), ``dl/10uh``
-(deadlocks broken per 10 unit-hours),
+fractions), ``of bnd`` (trips / bound), ``free`` (the trips of the scenario's
+congestion-free run, ``scenarios.score.free_run``: the same trips, releases, dispatcher
+and breakdowns, every trip driven in its own ideal time from where its unit stands, whole
+trips only; the same for every coordinator), ``of free`` (trips / free: the share of what
+the floor allows that the fleet did), ``dl/10uh`` (deadlocks broken per 10 unit-hours),
 ``trips/u.h`` (``trips_per_unit_hour``), ``ratio`` (``trip_time_ratio``: actual / ideal
 trip time), ``eff`` (``fleet_efficiency``), ``v_mov`` (``mean_speed_moving`` [m/s]),
 ``moving`` (``moving_share``), ``dl`` (deadlocks broken), ``coll`` (collisions), sim
@@ -76,6 +76,7 @@ from dataclasses import dataclass  # noqa: E402
 
 from scenarios.run.record import RunRecord, UnitSample  # noqa: E402
 from scenarios.run.runner import run  # noqa: E402
+from scenarios.score.free_run import free_run  # noqa: E402
 from scenarios.spec.layout import ONE_WAY_PATTERNS  # noqa: E402
 from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
@@ -156,24 +157,22 @@ def row(
     coordinator: str,
     record: RunRecord,
     total_wall: float,
+    free_trips: int,
     two_way: dict | None = None,
 ) -> dict:
-    """One table row (and JSON line) from a run's record; ``two_way``: the row of the
-    same floor run two-way, whose bound this run's trips are counted against (a one-way
-    pattern makes trips longer: its own ideal would flatter it)."""
+    """One table row (and JSON line) from a run's record; ``free_trips``: the trips of the
+    scenario's congestion-free run (``scenarios.score.free_run``); ``two_way``: the row
+    of the same floor run two-way, whose bounds this run's trips are counted against (a
+    one-way pattern makes trips longer: its own would flatter it)."""
     m = record.metrics
     broken: dict[str, list[tuple[float, float]]] = {}
     for b in scenario.breakdowns():
         broken.setdefault(b.unit_id, []).append((b.at, b.until))
     sim_s, wall_s = float(m["sim_seconds"]), float(m["wall_seconds"])
     bound = trip_bound(scenario, m["units"], sim_s, m["ideal_trip_s"])
-    releases = [t.release for t in scenario.task_stream() if t.release < sim_s]
-    # Units are alike in the congestion-free schedule: which index breaks down is moot.
-    sched = scheduled_trip_bound(
-        releases, m["units"], sim_s, m["ideal_trip_s"], dict(enumerate(broken.values()))
-    )
+    free = free_trips
     if two_way is not None:
-        bound, sched = two_way["trip_bound"], two_way["trip_bound_scheduled"]
+        bound, free = two_way["trip_bound"], two_way["trips_free_run"]
     unit_hours = m["units"] * sim_s / 3600.0
     return {
         "scenario": scenario.name,
@@ -184,8 +183,8 @@ def row(
         "trips": m["tasks_completed"],
         "trip_bound": round(bound, 2) if bound is not None else None,
         "trips_of_bound": round(m["tasks_completed"] / bound, 3) if bound else None,
-        "trip_bound_scheduled": sched,
-        "trips_of_scheduled": round(m["tasks_completed"] / sched, 3) if sched else None,
+        "trips_free_run": free,
+        "trips_of_free_run": round(m["tasks_completed"] / free, 3) if free else None,
         "deadlocks_per_10_unit_hours": round(10 * m["deadlocks"] / unit_hours, 2)
         if unit_hours
         else None,
@@ -216,56 +215,14 @@ def trip_bound(
     return min(float(released), units * sim_s / ideal_trip_s)
 
 
-def scheduled_trip_bound(
-    releases: list[float],
-    units: int,
-    sim_s: float,
-    ideal_trip_s: float | None,
-    breakdowns: dict[int, list[tuple[float, float]]] | None = None,
-) -> int | None:
-    """The trips a congestion-free fleet completes by ``sim_s`` [s] (module docstring,
-    ``sched``): each trip, in release order, goes to the unit that would finish it
-    first (ties: the lowest index), starts at ``max(release, free)`` and takes
-    ``ideal_trip_s`` [s]; a trip under way when its unit breaks down (``breakdowns``:
-    unit index -> [(from, until)] [s]) pauses until the unit drives again, and a unit
-    broken down when it would start waits for the end of it. Without breakdowns the
-    trips take equal times, so list scheduling in release order finishes each k-th trip
-    as early as any schedule can (the bound is the most any fleet could do); the fluid bound
-    (``trip_bound``) counts the trips still under way at the end as fractions, this one
-    does not. None without a completed trip to take the ideal trip time from."""
-    if not ideal_trip_s or units <= 0:
-        return None
-    spans = {u: sorted((breakdowns or {}).get(u, [])) for u in range(units)}
-
-    def finish(unit: int, ready: float) -> float:
-        """When ``unit``, free at ``ready`` [s], would finish a trip started then."""
-        start, end = ready, ready + ideal_trip_s
-        for a, b in spans[unit]:
-            if a <= start < b:  # broken down when it would start: starts when repaired
-                start, end = b, b + ideal_trip_s
-            elif start < a < end:  # breaks down under way: the trip pauses
-                end += b - a
-        return end
-
-    free = [0.0] * units
-    done = 0
-    for release in sorted(releases):
-        ends = [finish(u, max(release, free[u])) for u in range(units)]
-        unit = min(range(units), key=lambda u: (ends[u], u))
-        free[unit] = ends[unit]
-        if ends[unit] <= sim_s + 1e-9:
-            done += 1
-    return done
-
-
 COLUMNS = (  # (title, key, format)
     ("scenario", "scenario", "<20"),
     ("coordinator", "coordinator", "<13"),
     ("trips", "trips", ">5"),
     ("bound", "trip_bound", ">6.1f"),
     ("of bnd", "trips_of_bound", ">6.2f"),
-    ("sched", "trip_bound_scheduled", ">5"),
-    ("of sch", "trips_of_scheduled", ">6.2f"),
+    ("free", "trips_free_run", ">5"),
+    ("of free", "trips_of_free_run", ">7.2f"),
     ("trips/u.h", "trips_per_unit_hour", ">9.2f"),
     ("ratio", "trip_time_ratio", ">6.2f"),
     ("eff", "fleet_efficiency", ">6.3f"),
@@ -364,11 +321,12 @@ def main() -> None:
             scenario = scenario.with_seed(args.seed)
         if args.duration is not None:
             scenario = dataclasses.replace(scenario, duration=args.duration)
+        free_trips = free_run(scenario).trips  # the same for every coordinator
         for name in coordinators:
             t0 = time.perf_counter()
             coordination = dataclasses.replace(scenario.coordination, **COORDINATORS[name])
             record = run(dataclasses.replace(scenario, coordination=coordination))
-            rows.append(row(scenario, name, record, time.perf_counter() - t0))
+            rows.append(row(scenario, name, record, time.perf_counter() - t0, free_trips))
             print(line(rows[-1]), flush=True)
             if args.one_way is None or scenario.one_way:
                 continue
@@ -376,7 +334,7 @@ def main() -> None:
             patterned = with_one_way(scenario, args.one_way)
             t0 = time.perf_counter()
             record = run(dataclasses.replace(patterned, coordination=coordination))
-            rows.append(row(patterned, name, record, time.perf_counter() - t0, two_way))
+            rows.append(row(patterned, name, record, time.perf_counter() - t0, free_trips, two_way))
             print(line(rows[-1]), flush=True)
     if args.json:
         for r in rows:
