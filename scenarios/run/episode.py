@@ -55,6 +55,7 @@ from scenarios.run.trip_queue import ReturnWatch, TripQueue
 from scenarios.score.clearing import ClearingTracker
 from scenarios.score.counts import freeze_counts, plan_counts
 from scenarios.score.evidence import freeze_records
+from scenarios.score.free_run import free_run_metrics
 from scenarios.score.incidents import collision_counts
 from scenarios.score.map_truth import summary as map_truth_summary
 from scenarios.score.metric_registry import check_run_metrics
@@ -378,6 +379,7 @@ class Episode:
             "scans_fused": self.poster.poster.posted,
             "events": len(self.events),
             **throughput.metrics(self.setup.units.count, self.sim.time),
+            **free_run_metrics(self.setup, self.sim.time, len(throughput.trips)),
         }
         check_run_metrics(metrics)
         return metrics

@@ -38,6 +38,7 @@ from scenarios.run.record import (
     UnitSample,
 )
 from scenarios.score.counts import freeze_counts, plan_counts
+from scenarios.score.free_run import free_run_metrics
 from scenarios.score.incidents import (
     ContactCell,
     IncidentTracker,
@@ -249,7 +250,7 @@ class Throughput(_Observer):
     """Trips, their returns and unit-ticks for the throughput metrics
     (``scenarios.score.throughput``)."""
 
-    feeds = ("tasks_completed", *ThroughputTracker.metrics.feeds)
+    feeds = ("tasks_completed", *ThroughputTracker.metrics.feeds, *free_run_metrics.feeds)
 
     def __init__(self, episode: Episode) -> None:
         self.tracker = ThroughputTracker(

@@ -32,6 +32,7 @@ from fleet.unit import DriveLimits
 from planner.reservations import unit_order
 from scenarios.run.dispatch import Dispatcher
 from scenarios.run.trip_queue import TripQueue
+from scenarios.score.metric_registry import feeds
 from scenarios.score.throughput import ideal_trip_s
 from scenarios.spec.scenario import Scenario
 
@@ -123,3 +124,15 @@ def free_run(scenario: Scenario, sim_s: float | None = None) -> FreeRun:
                 heapq.heappush(events, finish)
     done.sort()
     return FreeRun(end_s, len(done), given, tuple(ideal for _, ideal in done))
+
+
+@feeds("trips_free_run", "trips_of_free_run")
+def free_run_metrics(scenario: Scenario, sim_s: float, trips: int) -> dict[str, object]:
+    """The run's ``metrics.json`` keys against its congestion-free run: how many trips that
+    completes by ``sim_s`` [s] on the run's own floor, and the run's ``trips`` over it
+    (None when it completes none)."""
+    free = free_run(scenario, sim_s).trips
+    return {
+        "trips_free_run": free,
+        "trips_of_free_run": round(trips / free, 4) if free else None,
+    }

@@ -441,6 +441,14 @@ REGISTRY = Registry(
         Metric("returned_s", "time in returned trips", UNIT_SECONDS, _LOWER,
                "the time of the returned attempts, from their assignment to their return: "
                "time lost to blocked work", "throughput", views=_THROUGHPUT),
+        Metric("trips_free_run", "trips, congestion-free", COUNT, _NEITHER,
+               "the trips the run's congestion-free replay completes by its end: the same "
+               "trips, releases, dispatcher and breakdowns, every trip driven alone in its "
+               "ideal time (docs/throughput.md); what the floor allows", "throughput",
+               views=_THROUGHPUT),
+        Metric("trips_of_free_run", "trips of congestion-free", SHARE, _HIGHER,
+               "`tasks_completed / trips_free_run`; null when that is 0", "throughput",
+               decimals=2, views=_THROUGHPUT),
         *(
             Metric(f"wait_s.{cause}", f"standing, {cause}", UNIT_SECONDS, better,
                    f"unit-seconds units with a task stood still (speed 0): {why}",

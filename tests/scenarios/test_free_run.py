@@ -119,3 +119,16 @@ def test_paused_work_exact():
     assert paused_end(25.0, 40.0, [(20.0, 50.0)]) == (50.0, 90.0)
     assert paused_end(0.0, 10.0, [(20.0, 50.0)]) == (0.0, 10.0)
     assert paused_end(0.0, 10.0, []) == (0.0, 10.0)
+
+
+def test_a_run_reports_its_trips_against_its_congestion_free_run():
+    from scenarios.run.runner import run
+
+    scenario = load_scenario(TINY)
+    metrics = run(scenario).metrics
+    free = free_run(scenario, metrics["sim_seconds"]).trips
+    # tiny.yaml's two trips go to its two units at 0 s; alone, one takes 18.8 s and the
+    # other 23.8 s, past the run's 20 s.
+    assert free == 1 and free_run(scenario, 24.0).trips == 2
+    assert metrics["trips_free_run"] == free
+    assert metrics["trips_of_free_run"] == round(metrics["tasks_completed"] / free, 4)

@@ -23,6 +23,7 @@ from scenarios.run.observers import CountersRecorder, StandardObservers
 from scenarios.run.record import CountersSample, RunRecord
 from scenarios.score import metric_registry
 from scenarios.score.counts import freeze_counts, plan_counts
+from scenarios.score.free_run import free_run_metrics
 from scenarios.score.incidents import collision_counts
 from scenarios.score.metric_docs import block_table, page_files, rewrite, stale_blocks
 from scenarios.score.metric_registry import (
@@ -47,7 +48,9 @@ from scenarios.sweep.sweep_file import Sweep, SweepRun
 
 ROOT = Path(__file__).resolve().parents[2]
 GEOMETRY = GridGeometry(width=4, height=4, resolution=0.5, origin_x=0.0, origin_y=0.0)
-SCORERS = (freeze_counts, plan_counts, collision_counts, ThroughputTracker.metrics)
+SCORERS = (
+    freeze_counts, plan_counts, collision_counts, ThroughputTracker.metrics, free_run_metrics
+)  # fmt: skip
 RUN_OWN = {"scenario", "policy", "seed", "units", "sim_seconds", "wall_seconds", "replans",
            "deadlocks", "scans_fused", "events"}  # fmt: skip
 """The keys ``Episode._metrics`` takes from the scenario, the clock, the navigators, the
