@@ -7,15 +7,19 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from matplotlib.figure import Figure
 from mcap.reader import make_reader
+from scipy import ndimage
 
 from mapserver.core.geometry import GridGeometry
 from scenarios.replay.map_truth_channel import MAP_TRUTH_TOPIC, SCHEMA
 from scenarios.replay.mcap import write_replay
 from scenarios.run import runner
 from scenarios.run.record import MapTruthSample, RunRecord
-from scenarios.score.map_truth import KEYS, footprints, measure, reachable_floor, summary
+from scenarios.score.map_truth import KEYS, _near, footprints, measure, reachable_floor, summary
 from scenarios.score.report_map_truth import draw_map_truth
 from scenarios.spec.scenario import load_scenario
 
@@ -77,6 +81,21 @@ def test_a_perfect_map_has_no_phantom_or_forgotten_cell_and_nothing_unknown():
 def test_nothing_reachable_is_no_unknown_share():
     nowhere = np.zeros(SHARED.shape, dtype=bool)
     assert measure(0.0, SHARED, TRUTH, nowhere).unknown_share == 0.0
+
+
+@given(
+    mask=arrays(bool, st.tuples(st.integers(1, 12), st.integers(1, 12))),
+    cells=st.integers(0, 3),
+)
+def test_the_tolerance_grows_a_mask_as_a_square_dilation(mask, cells):
+    square = np.ones((2 * cells + 1,) * 2, dtype=bool)
+    expected = ndimage.binary_dilation(mask, structure=square) if cells else mask
+    assert np.array_equal(_near(mask, cells), expected)
+    if cells:  # a lone cell grows to the square around it, clipped at the edges
+        lone = np.zeros((9, 9), dtype=bool)
+        lone[0, 4] = True
+        grown = _near(lone, cells)
+        assert np.count_nonzero(grown) == (cells + 1) * (2 * cells + 1)
 
 
 def test_shapes_must_agree():
