@@ -65,6 +65,16 @@ def paused_end(start: float, duration: float, spans: list[Span]) -> tuple[float,
     return start, end
 
 
+def breakdown_spans(scenario: Scenario) -> dict[str, list[Span]]:
+    """Each unit's breakdowns (unit id -> [(from, until)] [s], sorted; every unit listed)."""
+    spans: dict[str, list[Span]] = {s.unit_id: [] for s in scenario.unit_specs()}
+    for b in scenario.breakdowns():
+        spans.setdefault(b.unit_id, []).append((b.at, b.until))
+    for unit_spans in spans.values():
+        unit_spans.sort()
+    return spans
+
+
 def free_run(scenario: Scenario, sim_s: float | None = None) -> FreeRun:
     """The congestion-free run of ``scenario`` (module docstring) up to ``sim_s`` [s]
     (default: its duration), on its own lane graph (its ``layout.one_way`` included)."""
@@ -73,14 +83,10 @@ def free_run(scenario: Scenario, sim_s: float | None = None) -> FreeRun:
     graph = scenario.build_lane_graph(segment_m=plan.segment_m)
     specs = {s.unit_id: s for s in scenario.unit_specs()}
     order = sorted(specs, key=unit_order)
-    spans: dict[str, list[Span]] = {uid: [] for uid in specs}
-    for b in scenario.breakdowns():
-        spans.setdefault(b.unit_id, []).append((b.at, b.until))
-    for s in spans.values():
-        s.sort()
+    spans = breakdown_spans(scenario)
     node: dict[str, str] = {}
     position: dict[str, tuple[float, float]] = {}
-    for spec in scenario.unit_specs():  # in spec order, as the runner places them
+    for spec in specs.values():  # in spec order, as the runner places them
         at = (spec.start.x, spec.start.y)
         start = graph.nearest_free_node(*at, set(node.values()))
         if start is None:

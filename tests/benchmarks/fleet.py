@@ -76,7 +76,7 @@ from dataclasses import dataclass  # noqa: E402
 
 from scenarios.run.record import RunRecord, UnitSample  # noqa: E402
 from scenarios.run.runner import run  # noqa: E402
-from scenarios.score.free_run import free_run  # noqa: E402
+from scenarios.score.free_run import breakdown_spans, free_run  # noqa: E402
 from scenarios.spec.layout import ONE_WAY_PATTERNS  # noqa: E402
 from scenarios.spec.scenario import Scenario, load_scenario  # noqa: E402
 
@@ -165,14 +165,12 @@ def row(
     of the same floor run two-way, whose bounds this run's trips are counted against (a
     one-way pattern makes trips longer: its own would flatter it)."""
     m = record.metrics
-    broken: dict[str, list[tuple[float, float]]] = {}
-    for b in scenario.breakdowns():
-        broken.setdefault(b.unit_id, []).append((b.at, b.until))
+    broken = breakdown_spans(scenario)
     sim_s, wall_s = float(m["sim_seconds"]), float(m["wall_seconds"])
     bound = trip_bound(scenario, m["units"], sim_s, m["ideal_trip_s"])
-    free = free_trips
+    free = free_trips if two_way is None else two_way["trips_free_run"]
     if two_way is not None:
-        bound, free = two_way["trip_bound"], two_way["trips_free_run"]
+        bound = two_way["trip_bound"]
     unit_hours = m["units"] * sim_s / 3600.0
     return {
         "scenario": scenario.name,

@@ -87,12 +87,12 @@ def test_the_same_for_every_coordinator_and_run():
 
 
 def test_never_more_than_the_fluid_bound():
-    # No unit drives faster than its ideal: trips done <= units x seconds / mean ideal.
+    # A unit drives one trip at a time, each in its ideal time, all done by the end: the
+    # completed trips' ideal times sum to at most units x seconds.
     scenario = load_scenario(FLOOR)
     run = free_run(scenario)
-    mean = sum(run.ideal_s) / len(run.ideal_s)
-    assert run.trips <= run.given
-    assert run.trips <= scenario.units.count * run.sim_s / mean + scenario.units.count
+    assert 0 < run.trips <= run.given
+    assert sum(run.ideal_s) <= scenario.units.count * run.sim_s
 
 
 @pytest.mark.parametrize("cut", [30.0, 60.0, 120.0])
