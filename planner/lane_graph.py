@@ -552,6 +552,41 @@ def _one_way_table(one_way: Iterable[tuple[str, str]], lanes: set[Lane]) -> dict
     return table
 
 
+class _NearestStretches:
+    """The stretches (lane segments between junctions) nearest a point, found for all of
+    them at once in numpy: ``candidates`` gives the indices, in order, whose distance is
+    within ``TIE_M`` of the least, which the caller measures again exactly (``math``)
+    and takes the first least of, as a loop over every stretch would."""
+
+    TIE_M = 1e-9  # [m] numpy's and math's distances may differ in their last bits
+
+    def __init__(
+        self, stretches: list[tuple[str, str, str]], positions: Mapping[str, tuple[float, float]]
+    ) -> None:
+        ends = np.array(
+            [(*positions[a], *positions[b]) for a, b, _ in stretches], dtype=np.float64
+        ).reshape(-1, 4)
+        self.ax, self.ay = ends[:, 0], ends[:, 1]
+        self.dx, self.dy = ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1]
+        self.length = np.hypot(self.dx, self.dy)
+
+    def candidates(self, x: float, y: float) -> list[int]:
+        """Indices of the stretches nearest (x, y) [m] (see the class docstring)."""
+        if not len(self.length):
+            return []
+        with np.errstate(invalid="ignore", divide="ignore"):
+            along = ((x - self.ax) * self.dx + (y - self.ay) * self.dy) / self.length
+            t = np.minimum(np.maximum(along, 0.0), self.length)
+            gap = np.hypot(
+                self.ax + self.dx * t / self.length - x, self.ay + self.dy * t / self.length - y
+            )
+        finite = np.isfinite(gap)
+        if not finite.any():
+            return list(range(len(gap)))  # let the exact loop say what it says
+        least = gap[finite].min()
+        return [int(i) for i in np.flatnonzero(~finite | (gap <= least + self.TIE_M))]
+
+
 def _place_stations(
     stations: Mapping[str, tuple[float, float]],
     stretches: list[tuple[str, str, str]],
@@ -560,6 +595,7 @@ def _place_stations(
 ) -> dict[int, list[tuple[float, str]]]:
     """stretch index -> [(distance from its tail [m], station id)], sorted; adds positions."""
     stops: dict[int, list[tuple[float, str]]] = {}
+    near = _NearestStretches(stretches, positions)
     for sid in sorted(stations):
         x, y = stations[sid]
         if not (isinstance(sid, str) and sid and math.isfinite(x) and math.isfinite(y)):
@@ -567,7 +603,8 @@ def _place_stations(
         if sid in positions:
             raise ValueError(f"station id {sid!r} is already a node id")
         best: tuple[float, int, float] | None = None  # (distance, stretch, t [m])
-        for index, (a, b, _) in enumerate(stretches):
+        for index in near.candidates(x, y):
+            a, b, _ = stretches[index]
             (ax, ay), (bx, by) = positions[a], positions[b]
             length = math.hypot(bx - ax, by - ay)
             t = min(max(((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / length, 0.0), length)

@@ -7,7 +7,7 @@
   the pod's *lane point* (``lane_point``: the nearest point to its centre on the lane
   grid, the lane centre lines between the outermost junctions).
 - ``check_stops``: stations and storage locations (the lane graph's stops) have distinct
-  ids that are not lane node ids, stand clear of every obstacle (``check_clear``), and
+  ids that are not lane node ids, stand clear of every obstacle (``check_clear_of``), and
   are accepted, with the ``one_way`` lanes, by ``LaneGraph.from_warehouse``, whose error
   is placed at the stop or pair it names.
 """
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import Discriminator, Field
 
 from fleet.boxworld import BoxWorld, Warehouse
-from fleet.layout import Kind, Layout, LayoutError
+from fleet.layout import Kind, Layout, LayoutError, Obstacle
 from mapserver.service.validation import Section, number, reworded, text, variant, variant_tag
 from planner.lane_graph import LaneGraph, one_way_aisles, one_way_loops
 from scenarios.spec.yaml_lines import Document, FieldPath, field_path
@@ -184,23 +184,49 @@ def lane_point(layout: Layout, x: float, y: float) -> Point | None:
     return min(candidates, key=lambda p: math.hypot(p[0] - x, p[1] - y))
 
 
-def check_clear(
-    doc: Document, where: FieldPath, layout: Layout, point: Point, clearance: float
+def first_offenders(
+    layout: Layout, points: Sequence[Point], clearance: float
+) -> list[tuple[Obstacle, float] | None]:
+    """For each of ``points`` (x, y) [m], the first obstacle of the layout (in its order)
+    within ``clearance`` [m] of it and that gap [m], or None when it stands clear. One
+    vectorised distance per obstacle over all points, so a thousand stops against
+    thousands of obstacles take a fraction of a second, not half a minute."""
+    found: list[tuple[Obstacle, float] | None] = [None] * len(points)
+    if not points:
+        return found
+    xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    open_ = np.ones(len(xy), dtype=bool)  # no offender found yet
+    for obstacle in layout.obstacles:
+        gaps = np.asarray(obstacle.shape.distance(xy[:, 0], xy[:, 1]), dtype=np.float64)
+        hit = open_ & (gaps <= clearance)
+        for i in np.flatnonzero(hit):
+            found[i] = (obstacle, float(gaps[i]))
+        open_ &= ~hit
+    return found
+
+
+def check_clear_of(
+    doc: Document,
+    where: FieldPath,
+    layout: Layout,
+    point: Point,
+    clearance: float,
+    offender: tuple[Obstacle, float] | None,
 ) -> None:
-    """``point`` (x, y) [m] lies on the floor, farther than ``clearance`` [m] from every
-    obstacle; else a ScenarioError at ``where`` naming the nearest offender."""
+    """``point`` (x, y) [m] lies on the floor and ``offender`` (``first_offenders``: the
+    first obstacle within ``clearance`` [m] of it, and the gap) is None; else a
+    ScenarioError at ``where`` naming the offender."""
     x, y = point
     if not (0 <= x <= layout.width and 0 <= y <= layout.height):
         raise doc.error(where, "must lie on the floor", point)
-    for obstacle in layout.obstacles:
-        gap = float(obstacle.shape.distance(x, y))
-        if gap <= clearance:
-            raise doc.error(
-                where,
-                f"({x:.2f}, {y:.2f}) is {gap:.2f} m from {obstacle.kind.value} "
-                f"{obstacle.id!r}; a unit standing there needs more than {clearance:g} m "
-                "(the larger of the unit's radius and the inscribed radius, plus one cell)",
-            )
+    if offender is not None:
+        obstacle, gap = offender
+        raise doc.error(
+            where,
+            f"({x:.2f}, {y:.2f}) is {gap:.2f} m from {obstacle.kind.value} "
+            f"{obstacle.id!r}; a unit standing there needs more than {clearance:g} m "
+            "(the larger of the unit's radius and the inscribed radius, plus one cell)",
+        )
 
 
 def parse_one_way(doc: Document, lf: LayoutFields, layout: Layout) -> tuple[tuple[str, str], ...]:
@@ -255,8 +281,11 @@ def check_stops(
             raise doc.error(where, "has the id of a station", point.id)
         stop_paths[point.id] = where
     stops = {s.id: (s.x, s.y) for s in (*layout.stations, *storage)}
+    offenders = dict(
+        zip(stops, first_offenders(layout, list(stops.values()), clearance), strict=True)
+    )
     for sid, where in stop_paths.items():
         if LANE_NODE_ID.fullmatch(sid):
             raise doc.error(where, "is a lane graph node id (j<i>_<j>, w...); pick another", sid)
-        check_clear(doc, where, layout, stops[sid], clearance)
+        check_clear_of(doc, where, layout, stops[sid], clearance, offenders[sid])
     check_lanes(doc, layout, stops, stop_paths, one_way)

@@ -63,8 +63,9 @@ from scenarios.spec.events import (
 from scenarios.spec.layout import (
     LayoutFields,
     StoragePoint,
-    check_clear,
+    check_clear_of,
     check_stops,
+    first_offenders,
     layout_warehouse,
     parse_layout,
     parse_one_way,
@@ -100,7 +101,7 @@ Point = tuple[float, float]
 DEFAULT_DT_S = 0.1
 MAX_DURATION_S = 86_400.0
 MIN_DT_S = 0.001
-MAX_UNITS = 500
+MAX_UNITS = 2_000  # thousand_units.yaml runs 1,000
 
 
 # ---------------------------------------------------------------------------- model
@@ -399,10 +400,11 @@ def _starts(
             raise doc.error((*where, "count"), "is required (or give starts)")
         return _place(doc, layout, uf.count, clearance)
     starts: list[Pose2D] = []
+    offenders = first_offenders(layout, [(item.x, item.y) for item in uf.starts], clearance)
     for i, item in enumerate(uf.starts):
         at = (*where, "starts", i)
         starts.append(Pose2D(item.x, item.y, item.yaw))
-        check_clear(doc, at, layout, (item.x, item.y), clearance)
+        check_clear_of(doc, at, layout, (item.x, item.y), clearance, offenders[i])
         for k, other in enumerate(starts[:-1]):
             if math.hypot(other.x - item.x, other.y - item.y) <= 2 * drive.radius:
                 raise doc.error(at, f"overlaps the start of u{k + 1}", (item.x, item.y))

@@ -32,7 +32,7 @@ from scenarios.spec.scenario import (
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 SHIPPED = (
     "static_shift", "moved_pod", "dropped_tote", "person_crossing", "busy_shift",
-    "hundred_units", "tiny", "dropouts",
+    "hundred_units", "tiny", "dropouts", "thousand_units",
 )  # fmt: skip
 
 BASE = """\
