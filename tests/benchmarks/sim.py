@@ -3,8 +3,8 @@ PyBullet's ``rayTestBatch``) in the same run, sim steps, rays per second and rea
 factors, with and without the map server, and the profile of a step.
 
 Run: ``python -m tests.benchmarks.sim [--steps N] [--threads T] [--casters grid bullet]
-[--server-seconds S] [--server-units 50 100] [--scenario-seconds S] [--profile-steps N]
-[--skip-bare] [--json]``
+[--server-seconds S] [--server-units 50 100] [--scenario PATH] [--scenario-seconds S]
+[--profile-steps N] [--skip-bare] [--json]``
 
 0. Compile time of the ``grid`` caster's numba kernels, in a fresh process with an empty
    numba cache (compiled and cached), and again with that cache (loaded).
@@ -21,7 +21,8 @@ Run: ``python -m tests.benchmarks.sim [--steps N] [--threads T] [--casters grid 
    ``FootprintIndex.cast_fans`` call for all units. Printed: sim steps/s, sim rays/s,
    bare rays/s, the sim's overhead over bare casting [%], and the real-time factor (sim
    seconds per wall second) without a server.
-2. ``hundred_units`` (100 units x 360 beams at 5 Hz on a 200 m x 80 m floor), for
+2. ``hundred_units`` (100 units x 360 beams at 5 Hz on a 200 m x 80 m floor; ``--scenario``
+   another, e.g. ``scenarios/thousand_units.yaml``: 1,000 units on 400 m x 200 m), for
    ``--scenario-seconds`` of sim time with each caster: the whole run (``scenarios.run``:
    sim, planners, lane coordinator, its own embedded map server), and the sim alone on
    the same floor (each unit driving back and forth 8 m along its lane, no server).
@@ -217,10 +218,11 @@ def measure(
     }
 
 
-# ---------------------------------------------------------------------------- hundred_units
-def hundred_units(caster: str, seconds: float) -> Scenario:
-    """``hundred_units`` for ``seconds`` of sim time with ``caster``."""
-    return load_scenario(HUNDRED_UNITS, {"duration": seconds, "units.lidar.caster": caster})
+# ---------------------------------------------------------------------------- the scale run
+def scale_scenario(path: Path, caster: str, seconds: float) -> Scenario:
+    """The scenario at ``path`` (``hundred_units`` by default) for ``seconds`` of sim time
+    with ``caster``."""
+    return load_scenario(path, {"duration": seconds, "units.lidar.caster": caster})
 
 
 def shuttle_sim(scenario: Scenario) -> tuple[World, FleetSim]:
@@ -385,16 +387,21 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     )
     parser.add_argument(
         "--scenario-seconds", type=float, default=30.0,
-        help="sim seconds of hundred_units per caster (0: skip)",
+        help="sim seconds of --scenario per caster (0: skip)",
     )  # fmt: skip
     parser.add_argument(
         "--profile-steps", type=int, default=20, help="profiled steps per caster (0: skip)"
     )
+    parser.add_argument(
+        "--scenario", type=Path, default=HUNDRED_UNITS,
+        help="the scale run of parts 2 and 4 (default: scenarios/hundred_units.yaml)",
+    )  # fmt: skip
     parser.add_argument("--skip-bare", action="store_true", help="skip part 1")
     parser.add_argument("--json", action="store_true", help="print a JSON object last")
     args = parser.parse_args(argv)
+    name = args.scenario.stem
     warehouse = warehouse_layout()
-    result: dict[str, object] = {"threads": args.threads}
+    result: dict[str, object] = {"threads": args.threads, "scenario": name}
     if "grid" in args.casters:
         compiled = result["grid_compile"] = compile_seconds()
         print(
@@ -418,21 +425,22 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
                     f"{case['overhead_pct']:7.1f}% {case['realtime_factor']:11.2f}"
                 )
     if "grid" in args.casters:
-        upkeep = result["grid_index_upkeep"] = index_upkeep(hundred_units("grid", 60.0))
+        upkeep = index_upkeep(scale_scenario(args.scenario, "grid", 60.0))
+        result["grid_index_upkeep"] = upkeep
         print(
-            f"grid index on hundred_units ({upkeep['obstacles']} obstacles, {upkeep['units']} "
+            f"grid index on {name} ({upkeep['obstacles']} obstacles, {upkeep['units']} "
             f"units): a row written {upkeep['row_write_us']:.1f} us, the units' cells rebuilt "
             f"{upkeep['unit_cells_us']:.1f} us (once a step), the obstacles' "
             f"{upkeep['obstacle_cells_us']:.1f} us (once per obstacle change)"
         )
-    scenario = result["hundred_units"] = []
+    scenario = result["scale_runs"] = []
     for caster in args.casters if args.scenario_seconds > 0 else ():
-        setup = hundred_units(caster, args.scenario_seconds)
+        setup = scale_scenario(args.scenario, caster, args.scenario_seconds)
         for how, measured in (("sim alone", scenario_alone), ("whole run", scenario_run)):
             row = {"caster": caster, "how": how, **measured(setup)}
             scenario.append(row)
             print(
-                f"hundred_units, {caster}, {how}: {row['sim_seconds']:.1f} sim s in "
+                f"{name}, {caster}, {how}: {row['sim_seconds']:.1f} sim s in "
                 f"{row['wall_seconds']:.2f} s wall = {row['realtime_factor']:.2f}x real time"
             )
     served = result["with_server"] = []
@@ -448,8 +456,10 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
             )
     profiles = result["profiles"] = {}
     for caster in args.casters if args.profile_steps > 0 else ():
-        prof = profiles[caster] = profile_steps(hundred_units(caster, 60.0), args.profile_steps)
-        print(f"profile, hundred_units sim alone, {caster}: {prof['ms_per_step']:.1f} ms a step "
+        prof = profiles[caster] = profile_steps(
+            scale_scenario(args.scenario, caster, 60.0), args.profile_steps
+        )
+        print(f"profile, {name} sim alone, {caster}: {prof['ms_per_step']:.1f} ms a step "
               f"under cProfile; own time per step:")  # fmt: skip
         for name, ms, pct in prof["top"]:
             print(f"  {ms:8.2f} ms {pct:5.1f}%  {name}")
