@@ -114,16 +114,16 @@ def test_a_new_scan_appears_without_a_reload(page, server):
     assert page.console_errors() == []
 
 
+PATH_UNITS = [  # u1 moving along a path, u7 frozen
+    UnitState.of(
+        "u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05)), activity="moving"
+    ),
+    UnitState.of("u7", 4.0, Pose2D(25.05, 5.05, 1.0), frozen=True, reason="no path: aisle blocked"),
+]
+
+
 def test_units_are_drawn_with_their_paths_and_frozen_units_are_marked(page, server):
-    states = [
-        UnitState.of(
-            "u1", 4.0, Pose2D(3.05, 15.05, 0.0), ((3.05, 15.05), (10.05, 15.05)), activity="moving"
-        ),
-        UnitState.of(
-            "u7", 4.0, Pose2D(25.05, 5.05, 1.0), frozen=True, reason="no path: aisle blocked"
-        ),
-    ]
-    MapClient(server[1], token=UNIT).publish_units(states)
+    MapClient(server[1], token=UNIT).publish_units(PATH_UNITS)
     page.wait_for("document.querySelector('#units li[data-unit=\"u7\"].frozen') !== null")
     reason = "document.querySelector('#units li[data-unit=\"u7\"] .reason').textContent"
     assert page.evaluate(reason) == "no path: aisle blocked"
@@ -162,10 +162,12 @@ def publish(server, stamp, placed) -> None:
 
 
 def test_units_are_listed_in_natural_order_with_their_state_in_words_look_and_legend(page, server):
+    # u1 and u7 as the test before posts them (xdist may run this one without it)
+    MapClient(server[1], token=UNIT).publish_units(PATH_UNITS)
     publish(server, 5.0, STATE_UNITS)
     page.wait_for("document.querySelectorAll('#units li').length === 7")
     assert page.evaluate(LIST_UNITS) == [
-        ["u1", "moving"],  # from the test before, at (3.05, 15.05)
+        ["u1", "moving"],  # PATH_UNITS, at (3.05, 15.05)
         ["u2", "waiting for traffic"],
         ["u3", "dwelling at a stop"],
         ["u7", "frozen"],  # frozen: true, no activity
