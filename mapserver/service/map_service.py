@@ -25,7 +25,9 @@ reader never stalls ingest.
 
 Durability. Start-up loads the newest snapshot and replays the journal after it: the
 same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots are taken
-every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time.
+every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time, and
+no more often than keeps their saving within ``snapshot_max_share`` of the wall time
+(``snapshot_schedule``).
 Storage faults (docs/durability.md): an unusable snapshot falls back to an older one or
 to a full replay; a damaged journal record is quarantined, logged and skipped.
 Retention (``journal.retain_seconds``/``retain_bytes``, ``mapserver.store.retention``) runs
@@ -68,6 +70,7 @@ from mapserver.costmap.lower_bound import static_lower_bound
 from mapserver.service.map_clock import MapClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
+from mapserver.service.snapshot_schedule import SnapshotSchedule
 from mapserver.store.datadir_lock import FileLocks, LockBusy
 from mapserver.store.journal import Journal, JournalError, journal_path
 from mapserver.store.journal_reading import read_records
@@ -177,6 +180,12 @@ class MapService:
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
+        j = settings.journal
+        self._snapshots = SnapshotSchedule(
+            j.snapshot_every_scans, j.snapshot_every_seconds, j.snapshot_max_share
+        )
+        self.snapshot_save_seconds = 0.0
+        """[s] how long the last snapshot took to save, with its retention."""
         self._snapshotter: threading.Thread | None = None
         self.fusion_seconds = 0.0  # [s] total, for metrics
         self._dirty: list[CellBox] = []  # boxes fused since the costmap's last refresh
@@ -478,10 +487,10 @@ class MapService:
 
     def _snapshot_if_due(self) -> None:
         """Copy the belief and save it on a background thread, at most one at a time."""
-        j = self.settings.journal
-        due = self._since_snapshot >= j.snapshot_every_scans or (
-            self._since_snapshot > 0
-            and time.monotonic() - self._last_snapshot_time >= j.snapshot_every_seconds
+        due = self._snapshots.due(
+            self._since_snapshot,
+            time.monotonic() - self._last_snapshot_time,
+            self.snapshot_save_seconds,
         )
         if due and not (self._snapshotter and self._snapshotter.is_alive()):
             taken = self._take_snapshot()
@@ -513,17 +522,21 @@ class MapService:
         """Save a snapshot, then apply retention (off the ingest path: this runs on the
         snapshot thread, and retention deletes in short transactions)."""
         retention = self.retention.enabled
+        started = time.monotonic()
         try:
             self.journal.save_snapshot(seq, stamp, seq, arrays, prune=not retention)
         except Exception:  # the journal still holds every scan: start-up replays more
             self.snapshot_failures += 1
             logger.exception("snapshot at seq %d failed", seq)
             return
+        finally:
+            self.snapshot_save_seconds = time.monotonic() - started
         if retention:
             try:
                 apply_retention(self.journal, self.retention)
             except Exception:  # nothing acknowledged is lost: the next save retries
                 logger.exception("journal retention after the snapshot at seq %d failed", seq)
+            self.snapshot_save_seconds = time.monotonic() - started
 
     # --------------------------------------------------------------------- reads
     @property

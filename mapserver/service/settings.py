@@ -364,6 +364,10 @@ class JournalSettings(Section):
         or ``OFF`` (they survive a process crash only); ``mapserver.store.journal`` explains.
     snapshot_every_scans, snapshot_every_seconds [s]: snapshot the grid after this many
         scans or this long since the last snapshot, whichever comes first.
+    snapshot_max_share: at most this share of wall time goes to saving snapshots: after
+        one that took s seconds, the next waits at least s / snapshot_max_share seconds
+        from the start of that one (``mapserver.service.snapshot_schedule``). Default
+        0.1. At high scan rates on large grids, start-up then replays more scans.
     keep_snapshots: how many of the newest snapshots the journal always keeps.
     history: how many costmap versions' patches are kept for ``/v1/costmap/updates``.
     retain_seconds: [s] wall time a journaled scan is kept at least (Kafka's
@@ -383,6 +387,7 @@ class JournalSettings(Section):
     synchronous: Literal["FULL", "NORMAL", "OFF"] = "FULL"
     snapshot_every_scans: int = Field(default=2000, gt=0)
     snapshot_every_seconds: float = Field(default=60.0, gt=0, allow_inf_nan=False)
+    snapshot_max_share: float = Field(default=0.1, gt=0, le=1, allow_inf_nan=False)
     keep_snapshots: int = Field(default=2, gt=0)
     history: int = Field(default=256, gt=0)
     retain_seconds: float | None = Field(default=86400.0, ge=0, allow_inf_nan=False)

@@ -52,7 +52,14 @@ def validated(i: int, unit: str = "u1") -> dict:
 
 
 def retaining(data: Path, policy: str = DEFAULT_POLICY.value, **journal) -> MapService:
-    settings = {"snapshot_every_scans": 25, "retain_seconds": None, **journal}
+    # a snapshot every 25 scans however quick the saves (no share rule): the cuts below
+    # count on them
+    settings = {
+        "snapshot_every_scans": 25,
+        "snapshot_max_share": 1.0,
+        "retain_seconds": None,
+        **journal,
+    }
     return MapService(small_settings(data, journal=settings, policy=policy))
 
 
@@ -209,7 +216,8 @@ def test_kill_9_during_retention_loses_no_acknowledged_scan_inside_retention(
     data, config = tmp_path / "data", tmp_path / "server.yaml"
     retain = 0.5  # [s]
     config.write_text(
-        f"journal: {{snapshot_every_scans: 10, retain_seconds: {retain}, retain_bytes: null}}\n"
+        f"journal: {{snapshot_every_scans: 10, snapshot_max_share: 1.0, "
+        f"retain_seconds: {retain}, retain_bytes: null}}\n"
     )
     sent: list[tuple[float, int, float]] = []  # (wall time sent, seq acknowledged, stamp)
     stamp = 0.0
