@@ -29,6 +29,7 @@ Drawn with matplotlib's object API on an Agg canvas: no display, no global pyplo
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from pathlib import Path
@@ -320,6 +321,11 @@ def _marker_area(seconds: float) -> float:
     return min(60.0 + 20.0 * seconds, 400.0)
 
 
+MAX_UNIT_LABELS = 40
+"""The timeline names at most this many units (every k-th of a larger fleet), so the names
+stay legible: a row per unit of ``thousand_units`` is under a pixel."""
+
+
 def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
     units = sorted(
         {u.unit_id for u in record.units}
@@ -355,7 +361,11 @@ def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
         _scatter_collisions(ax, cause, [c.start for c in group], [row[c.unit_id] for c in group])
     if not units:
         ax.text(0.5, 0.5, "no units recorded", ha="center", va="center", transform=ax.transAxes)
-    ax.set_yticks(range(len(units)), units, fontsize=8 if len(units) > 12 else 9)
+    step = max(1, math.ceil(len(units) / MAX_UNIT_LABELS))  # a fleet of hundreds: some
+    named = range(0, len(units), step)
+    ax.set_yticks(list(named), [units[i] for i in named], fontsize=8 if len(units) > 12 else 9)
+    if step > 1:
+        ax.set_ylabel(f"{len(units)} units, every {step}th named")
     ax.set_ylim(max(len(units), 1) - 0.5, -0.5)
     ax.set_xlim(0.0, max(end, 1.0))
     ax.set_xlabel("sim time [s]")
