@@ -1,6 +1,7 @@
 """The fleet-member filter: returns ending on another unit are dropped, nothing else."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from hypothesis import given, settings
@@ -75,3 +76,41 @@ def test_the_filter_drops_exactly_the_returns_a_brute_force_check_drops(data, n,
     np.testing.assert_array_equal(np.isnan(keep.posted[0].ranges), np.isnan(expected))
     finite = ~np.isnan(expected)
     np.testing.assert_array_equal(keep.posted[0].ranges[finite], expected[finite])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    fleet=st.lists(
+        st.tuples(st.floats(-8, 8), st.floats(-8, 8), st.floats(-3.1, 3.1)), min_size=1, max_size=6
+    ),
+    n=st.integers(8, 90),
+    seed=st.integers(0, 2**16),
+)
+def test_a_ticks_scans_are_filtered_together_each_against_the_others(fleet, n, seed):
+    """Several units' scans in one post (one numba call for the tick): each scan loses
+    exactly what the brute force drops for its own unit, and a scan that loses nothing is
+    posted as it came."""
+    rng = np.random.default_rng(seed)
+    units = {f"u{k}": (x, y, 0.3) for k, (x, y, _) in enumerate(fleet)}
+    scans = []
+    for k, (x, y, yaw) in enumerate(fleet):
+        ranges = rng.uniform(0.05, 12.0, n)
+        ranges[rng.random(n) < 0.1] = math.inf
+        for ux, uy, _ in units.values():  # aim a beam at each other unit's centre
+            a = math.atan2(uy - y, ux - x) - yaw + math.pi
+            i = math.floor(a % (2 * math.pi) / (2 * math.pi / n))
+            if 0 <= i < n and (ux, uy) != (x, y):
+                ranges[i] = math.hypot(ux - x, uy - y)
+        scan = make_scan(x, y, yaw, ranges, 2 * math.pi, range_max=30.0)  # reaches every unit
+        scans.append(replace(scan, unit_id=f"u{k}"))
+    keep = Keep()
+    member_filter = FleetMemberFilter(keep, lambda: units, MARGIN)
+    member_filter.post(scans)
+    dropped = 0
+    for scan, posted in zip(scans, keep.posted, strict=True):
+        expected = brute_force(scan, units, MARGIN)
+        np.testing.assert_array_equal(np.isnan(posted.ranges), np.isnan(expected))
+        lost = int(np.isnan(expected).sum())
+        dropped += lost
+        assert (posted is scan) == (lost == 0)
+    assert member_filter.dropped == dropped
