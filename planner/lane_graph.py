@@ -552,6 +552,27 @@ def _one_way_table(one_way: Iterable[tuple[str, str]], lanes: set[Lane]) -> dict
     return table
 
 
+def nearest_stretch(
+    x: float,
+    y: float,
+    stretches: list[tuple[str, str, str]],
+    positions: Mapping[str, tuple[float, float]],
+    indices: Iterable[int],
+) -> tuple[float, int, float] | None:
+    """Of the stretches at ``indices``, the first nearest (x, y) [m], measured exactly:
+    (distance [m], its index, the foot's distance from its tail [m]); None for none."""
+    best: tuple[float, int, float] | None = None
+    for index in indices:
+        a, b, _ = stretches[index]
+        (ax, ay), (bx, by) = positions[a], positions[b]
+        length = math.hypot(bx - ax, by - ay)
+        t = min(max(((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / length, 0.0), length)
+        gap = math.hypot(ax + (bx - ax) * t / length - x, ay + (by - ay) * t / length - y)
+        if best is None or gap < best[0]:
+            best = (gap, index, t)
+    return best
+
+
 class _NearestStretches:
     """The stretches (lane segments between junctions) nearest a point, found for all of
     them at once in numpy: ``candidates`` gives the indices, in order, whose distance is
@@ -602,15 +623,7 @@ def _place_stations(
             raise ValueError(f"stations[{sid!r}] must be a finite (x, y), got {(x, y)!r}")
         if sid in positions:
             raise ValueError(f"station id {sid!r} is already a node id")
-        best: tuple[float, int, float] | None = None  # (distance, stretch, t [m])
-        for index in near.candidates(x, y):
-            a, b, _ = stretches[index]
-            (ax, ay), (bx, by) = positions[a], positions[b]
-            length = math.hypot(bx - ax, by - ay)
-            t = min(max(((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / length, 0.0), length)
-            gap = math.hypot(ax + (bx - ax) * t / length - x, ay + (by - ay) * t / length - y)
-            if best is None or gap < best[0]:
-                best = (gap, index, t)
+        best = nearest_stretch(x, y, stretches, positions, near.candidates(x, y))
         if best is None or best[0] > snap_m:
             gap = "no lane" if best is None else f"{best[0]:.3f} m from the nearest lane"
             raise ValueError(

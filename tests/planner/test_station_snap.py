@@ -7,27 +7,14 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.lane_graph import _place_stations
+from planner.lane_graph import _place_stations, nearest_stretch
 
 
 def loop_nearest(stations, stretches, positions):
-    """The loop over every stretch: the first nearest, as ``_place_stations`` did."""
-    out = {}
-    for sid in sorted(stations):
-        x, y = stations[sid]
-        best = None
-        for index, (a, b, _) in enumerate(stretches):
-            (ax, ay), (bx, by) = positions[a], positions[b]
-            length = math.hypot(bx - ax, by - ay)
-            t = min(max(((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / length, 0.0), length)
-            gap = math.hypot(ax + (bx - ax) * t / length - x, ay + (by - ay) * t / length - y)
-            if best is None or gap < best[0]:
-                best = (gap, index, t)
-        out[sid] = best
-    return out
-
-
-grid_coord = st.integers(0, 6).map(lambda k: 5.0 * k + 1.83)
+    """The loop over every stretch (``nearest_stretch`` of them all), as
+    ``_place_stations`` did before it measured only numpy's candidates."""
+    every = range(len(stretches))
+    return {sid: nearest_stretch(*stations[sid], stretches, positions, every) for sid in stations}
 
 
 @settings(max_examples=80, deadline=None)
