@@ -18,6 +18,7 @@ poses for the replay and the live viewer, costmap snapshots and the world's obje
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -324,11 +325,15 @@ class CountersRecorder(_Observer):
     def __init__(self, throughput: Throughput, every_s: float) -> None:
         self.throughput = throughput
         self.every_s = every_s
+        self._plans_counted = 0  # ``record.plans`` (append-only) counted so far
+        self._plans = Counter[str]()  # their counts (``plan_counts``, which add up)
 
     def observe(self, episode: Episode) -> None:
         record = episode.record
         collisions = collision_counts(record.incidents)
-        plans = plan_counts(record.plans)
+        self._plans.update(plan_counts(record.plans[self._plans_counted :]))
+        self._plans_counted = len(record.plans)
+        plans = self._plans
         record.counters.append(
             CountersSample(
                 episode.report.now,
