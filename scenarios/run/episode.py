@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -240,7 +240,11 @@ class Episode:
         report = StepReport(now, result, positions)
         self.record.collisions.extend(result.collisions)
         if self._map_reads.due(now):  # due at the first step
-            self.costs = self.synced().costmap()
+            read = self.synced().costmap()
+            # one writable copy a read: each navigator clears its own footprint in it and
+            # puts it back after planning (``UnitNavigator._plan``), where a read-only
+            # grid was copied whole for every plan
+            self.costs = replace(read, data=read.data.copy())
         if self._lane_reads.due(now):
             if self.setup.coordination.lanes_from == "server":
                 self.synced()
