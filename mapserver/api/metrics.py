@@ -1,14 +1,19 @@
 """Prometheus metrics of one server (its own registry): scans fused, refused and
-throttled (ingest budgets), fusion time, request latency, journal size, map version,
-quarantined journal records, failed snapshots, heavy reads admitted and refused."""
+throttled (ingest budgets), fusion time, the ingest stages' times and group sizes,
+request latency, journal size, map version, quarantined journal records, failed
+snapshots, heavy reads admitted and refused."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.core import HistogramMetricFamily
+from prometheus_client.registry import Collector
 
 from mapserver.api.admission import Admission
+from mapserver.service.ingest_stages import Histogram as StageHistogram
+from mapserver.service.ingest_stages import IngestStages
 from mapserver.service.map_service import MapService
 
 LATENCY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
@@ -78,6 +83,7 @@ class ServerMetrics:
             registry=self.registry,
         )
         snapshot_failures.set_function(lambda: service.snapshot_failures)
+        self.registry.register(IngestStagesCollector(service.stages))
 
     def watch_reads(self, admissions: Mapping[str, Admission]) -> None:
         """Gauges of the heavy reads by kind (``query``, ``plan``): admitted now (computing
@@ -97,3 +103,35 @@ class ServerMetrics:
         for kind, admission in admissions.items():
             inside.labels(kind).set_function(lambda a=admission: a.admitted)
             refused.labels(kind).set_function(lambda a=admission: a.refused)
+
+
+def _buckets(histogram: StageHistogram) -> list[tuple[str, float]]:
+    """Prometheus' cumulative buckets of ``histogram``, ``+Inf`` last."""
+    bounds = [repr(float(b)) for b in histogram.bounds] + ["+Inf"]
+    return list(zip(bounds, histogram.counts, strict=True))
+
+
+class IngestStagesCollector(Collector):
+    """``fleetmap_ingest_stage_seconds{stage}``: each accepted scan submission's time in
+    each ingest stage (``ingest_stages``: queued, journal, fuse_wait, fuse, and answered,
+    the whole); ``fleetmap_ingest_group_scans``: new scans per journaled group."""
+
+    def __init__(self, stages: IngestStages) -> None:
+        self.stages = stages
+
+    def collect(self) -> Iterator[HistogramMetricFamily]:
+        seconds = HistogramMetricFamily(
+            "fleetmap_ingest_stage_seconds",
+            "Time [s] an accepted scan submission spent in each ingest stage (queued, "
+            "journal, fuse_wait, fuse) and from submit to answer (answered)",
+            labels=["stage"],
+        )
+        for stage, histogram in self.stages.stages().items():
+            seconds.add_metric([stage], _buckets(histogram), histogram.total)
+        yield seconds
+        groups = self.stages.group_sizes()
+        sizes = HistogramMetricFamily(
+            "fleetmap_ingest_group_scans", "New scans per journaled and fused group"
+        )
+        sizes.add_metric([], _buckets(groups), groups.total)
+        yield sizes

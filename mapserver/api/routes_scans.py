@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request
@@ -10,6 +9,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from mapserver.api import ingest_budget
 from mapserver.api.auth import WRITE, require, require_unit
 from mapserver.api.body import body_schema, parse_json
+from mapserver.api.future_bridge import wrap_in_bursts
 from mapserver.api.guards import media_type
 from mapserver.api.scan_fields import unknown_batch_field, unknown_scan_field
 from mapserver.api.schemas import ErrorOut, ScanAck, ScanBatchAck, ScanBatchIn, ScanIn
@@ -61,7 +61,7 @@ async def _submit(request: Request, scans: list[Scan]) -> list[Any]:
     service: MapService = request.app.state.service
     metrics = request.app.state.metrics
     try:
-        acks = await asyncio.wrap_future(service.submit(scans))
+        acks = await wrap_in_bursts(service.submit(scans))
     except IngestError as exc:
         metrics.scans_rejected.labels(str(exc.status)).inc()
         raise HTTPException(exc.status, exc.detail) from None

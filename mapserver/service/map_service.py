@@ -11,7 +11,8 @@ any reply). A second thread
 fuses the journaled groups in the same order and then answers their submissions, so the
 journal write of one group (an fsync, without the GIL) overlaps the fusion of the one
 before (numba, without the GIL), and an ack's map version always includes its scan. A
-rejected submission changes nothing.
+rejected submission changes nothing. Each accepted submission's time in each of these
+stages is kept for ``GET /metrics`` (``ingest_stages``).
 The costmap follows the belief lazily: the boxes the scans touched are kept, and the
 costmap is brought up to the belief by the first read that needs it (so every read sees
 every acknowledged scan), or by the fusion thread once ``reads.costmap_refresh_s`` [s]
@@ -44,7 +45,7 @@ import queue
 import threading
 import time
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,7 @@ from mapserver.core.text import clip, quote
 from mapserver.costmap.layered import LayeredCostmap, merge_regions
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.costmap.lower_bound import static_lower_bound
+from mapserver.service.ingest_stages import IngestStages
 from mapserver.service.map_clock import MapClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
 from mapserver.service.settings import Settings
@@ -102,6 +104,7 @@ class GridRead:
 class _Submission:
     scans: list[Scan]
     future: Future
+    submitted: float = field(default_factory=time.monotonic)  # [s]
 
 
 @dataclass
@@ -112,6 +115,8 @@ class _Journaled:
     accepted: list[tuple[_Submission, list[UnitLatest]]]
     new: list[Scan]
     acks: list[Ack]
+    taken: float  # [s] monotonic: when the ingest thread took the group
+    journaled: float  # [s] monotonic: when its journal transaction committed
 
 
 def _units(scans: list[Scan]) -> str:
@@ -188,6 +193,7 @@ class MapService:
         """[s] how long the last snapshot took to save, with its retention."""
         self._snapshotter: threading.Thread | None = None
         self.fusion_seconds = 0.0  # [s] total, for metrics
+        self.stages = IngestStages()  # where submissions' time goes, for metrics
         self._dirty: list[CellBox] = []  # boxes fused since the costmap's last refresh
         self._costmap_refreshed = time.monotonic()
         self._closed = False
@@ -301,7 +307,7 @@ class MapService:
                 group, stop = self._next_group()
                 if group:
                     try:
-                        journaled = self._admit_and_journal(group)
+                        journaled = self._admit_and_journal(group, time.monotonic())
                     except Exception as exc:  # a bug: answer 500, never leave callers waiting
                         logger.exception("ingest failed")
                         _fail(group, exc)
@@ -331,10 +337,11 @@ class MapService:
             count += len(item.scans)
         return group, False
 
-    def _admit_and_journal(self, group: list[_Submission]) -> list[_Journaled]:
+    def _admit_and_journal(self, group: list[_Submission], taken: float) -> list[_Journaled]:
         """State checks per submission (``scan_gate``) and one journal transaction; the
         gate then holds the group's acks, so the next group is checked against it while
         this one fuses. Returns what the fusion thread fuses and answers, in order.
+        taken: [s] monotonic, when the group was taken from the queue (``stages``).
 
         When the group's journal write fails, nothing of it was journaled and the gate
         forgets it; a group of several submissions is then checked and journaled again
@@ -349,7 +356,7 @@ class MapService:
         except Exception as exc:  # disk full, I/O error, a bug: nothing was journaled
             check.abandon()
             if len(group) > 1:
-                return self._one_by_one(group)
+                return self._one_by_one(group, taken)
             self._journal_failed(group[0], exc)
             return []
         check.commit(acks)
@@ -359,9 +366,9 @@ class MapService:
                 sub.future.set_exception(outcome)
             else:
                 accepted.append((sub, outcome))
-        return [_Journaled(accepted, check.new, acks)]
+        return [_Journaled(accepted, check.new, acks, taken, time.monotonic())]
 
-    def _one_by_one(self, group: list[_Submission]) -> list[_Journaled]:
+    def _one_by_one(self, group: list[_Submission], taken: float) -> list[_Journaled]:
         """``group`` checked and journaled a submission at a time, in order, each in a
         gate check of its own: a submission whose write fails is answered 503 and leaves
         no trace; the others go on (one journal transaction, one fsync, each)."""
@@ -380,7 +387,7 @@ class MapService:
                 self._journal_failed(sub, exc)
                 continue
             check.commit(acks)
-            parts.append(_Journaled([(sub, outcome)], check.new, acks))
+            parts.append(_Journaled([(sub, outcome)], check.new, acks, taken, time.monotonic()))
         return parts
 
     def _append(self, scans: list[Scan]) -> list[Ack]:
@@ -407,16 +414,18 @@ class MapService:
             if journaled is None:
                 return
             try:
-                self._fuse(journaled)
+                self._fuse(journaled, time.monotonic())
                 self._snapshot_if_due()
             except Exception as exc:  # a bug: answer 500, never leave callers waiting
                 logger.exception("fusion failed")
                 _fail([sub for sub, _ in journaled.accepted], exc)
 
-    def _fuse(self, journaled: _Journaled) -> None:
+    def _fuse(self, journaled: _Journaled, taken: float) -> None:
         """Fuse a journaled group's new scans (the costmap follows lazily) and answer it.
         When fusing the group fails, it is fused submission by submission
-        (``_fuse_apart``) and only the submissions that fail are answered with the error."""
+        (``_fuse_apart``) and only the submissions that fail are answered with the error.
+        taken: [s] monotonic, when this thread took the group; its stage times are
+        recorded (``stages``) before any of it is answered."""
         failed: dict[int, IngestError] = {}  # slot among the new scans -> its answer
         if journaled.new:
             with self._lock:
@@ -435,6 +444,14 @@ class MapService:
                     self._dirty = merge_regions(self._dirty)
                 self.fusion_seconds += time.perf_counter() - t0
                 self._since_snapshot += len(journaled.new)
+        self.stages.record_group(
+            [sub.submitted for sub, _ in journaled.accepted],
+            journaled.taken,
+            journaled.journaled,
+            taken,
+            time.monotonic(),
+            len(journaled.new),
+        )
         for sub, entries in journaled.accepted:
             error = next((failed[e.slot] for e in entries if e.slot in failed), None)
             if error is not None:

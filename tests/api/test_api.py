@@ -228,6 +228,10 @@ def test_health_and_metrics(open_client):
     text = open_client.get("/metrics").text
     assert "fleetmap_scans_fused_total 1.0" in text
     assert "fleetmap_journal_bytes" in text and "fleetmap_request_seconds_bucket" in text
+    for stage in ("queued", "journal", "fuse_wait", "fuse", "answered"):
+        assert f'fleetmap_ingest_stage_seconds_count{{stage="{stage}"}} 1.0' in text
+        assert f'fleetmap_ingest_stage_seconds_bucket{{le="+Inf",stage="{stage}"}} 1.0' in text
+    assert "fleetmap_ingest_group_scans_sum 1.0" in text
     assert open_client.get("/openapi.json").json()["paths"]["/v1/scans"]["post"]
 
 

@@ -315,7 +315,7 @@ def test_labels_of_units_half_a_metre_apart_do_not_overlap_labels_or_markers(pag
                 marker = {"left": b["x"] - reach, "right": b["x"] + reach,
                           "top": b["y"] - reach, "bottom": b["y"] + reach}  # fmt: skip
                 assert not boxes_overlap(a, marker), (a["unit_id"], "covers", b["unit_id"])
-        assert page.evaluate(f"{WHITE_IN_BOX}({json.dumps(a)})") >= 8, a  # its text is there
+        page.wait_for(f"{WHITE_IN_BOX}({json.dumps(a)}) >= 8")  # its text is painted there
     assert any(label["leader"] for label in cluster)  # the crowded ones moved, tied by a line
     assert not labels["p1"]["leader"]  # the first in natural order sits beside its marker
     assert page.console_errors() == []

@@ -26,7 +26,9 @@ Printed: scans offered, posted, acknowledged, missed slots; offered and acknowle
 scans/s; errors by kind (HTTP status other than 200, connection errors, timeouts);
 request latency p50/p99/max [ms]; the server's RSS [MiB] every 5 s and its slope over
 the second half of the run [MiB/min, Theil-Sen] (flat memory: near 0); journal growth
-[bytes] and scans journaled vs acknowledged; the CPU share of a core used by this load generator
+[bytes] and scans journaled vs acknowledged; the server's mean time per ingest stage
+(``fleetmap_ingest_stage_seconds`` on ``/metrics``: queued, journal, fuse_wait, fuse,
+answered) and mean group size; the CPU share of a core used by this load generator
 and by the server (the machine has 2 shared cores: the generator must not be the
 bottleneck).
 
@@ -66,6 +68,7 @@ from dataclasses import dataclass, field  # noqa: E402
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 import orjson  # noqa: E402
+from prometheus_client.parser import text_string_to_metric_families  # noqa: E402
 
 from fleet.boxworld import beam_angles  # noqa: E402
 from mapserver.core.scan import Pose2D, Scan  # noqa: E402
@@ -491,6 +494,42 @@ def greedy_compare(args: argparse.Namespace, tmp: Path) -> dict:
     return figures
 
 
+def ingest_stage_totals(url: str) -> tuple[dict[str, float], dict[str, float]]:
+    """The server's ingest stage histograms' sums [s] and counts by stage, and its group
+    sizes' as ``group_scans`` (``fleetmap_ingest_stage_seconds``, ``/metrics``)."""
+    sums: dict[str, float] = {}
+    counts: dict[str, float] = {}
+    metrics = httpx.get(url + "/metrics", timeout=10).text
+    for family in text_string_to_metric_families(metrics):
+        for sample in family.samples:
+            key = sample.labels.get("stage", "group_scans")
+            if sample.name in (
+                "fleetmap_ingest_stage_seconds_sum",
+                "fleetmap_ingest_group_scans_sum",
+            ):
+                sums[key] = sample.value
+            elif sample.name in (
+                "fleetmap_ingest_stage_seconds_count",
+                "fleetmap_ingest_group_scans_count",
+            ):
+                counts[key] = sample.value
+    return sums, counts
+
+
+def ingest_stage_means(
+    before: tuple[dict[str, float], dict[str, float]],
+    after: tuple[dict[str, float], dict[str, float]],
+) -> dict[str, float]:
+    """Mean time per ingest stage [ms] and mean group size (``group_scans``) of what was
+    recorded between two ``ingest_stage_totals``."""
+    means = {}
+    for key, total in after[0].items():
+        count = after[1].get(key, 0.0) - before[1].get(key, 0.0)
+        mean = (total - before[0].get(key, 0.0)) / count if count else math.nan
+        means[key] = mean if key == "group_scans" else mean * 1e3
+    return means
+
+
 def wait_for_port(port: int, timeout: float = 60.0) -> None:
     """Until something accepts connections on 127.0.0.1:``port``."""
     deadline = time.monotonic() + timeout
@@ -566,6 +605,7 @@ def main() -> None:
         server = LoggedServer(Path(tmp) / "data", {"grid": grid_for(args.units)})
         try:
             warm_ms = warm_up(server.url, args)
+            stages_before = ingest_stage_totals(server.url)
             journal_before = server.journal_bytes()
             journaled_before = server.journal_count() or 0
             cpu_server0 = server.cpu_seconds() or 0.0
@@ -574,6 +614,7 @@ def main() -> None:
             usage1 = resource.getrusage(resource.RUSAGE_SELF)
             cpu_server = (server.cpu_seconds() or 0.0) - cpu_server0
             journal_after = server.journal_bytes()
+            stages = ingest_stage_means(stages_before, ingest_stage_totals(server.url))
         finally:
             server.stop()
         journaled = (server.journal_count() or 0) - journaled_before
@@ -612,6 +653,7 @@ def main() -> None:
         "server_cpu_share": cpu_server / wall,
         "beams": args.beams,
         "encoding": args.encoding,
+        "ingest_stage_mean_ms": stages,
         **ceiling,
     }
     print(f"fleet load: {args.units} units x {args.rate:g} Hz for {args.seconds:g} s, "
@@ -631,6 +673,11 @@ def main() -> None:
     slope = f["rss_slope_second_half_mib_per_min"]
     print("RSS slope over the second half: "
           + ("n/a (too few samples)" if slope is None else f"{slope:+.1f} MiB/min"))  # fmt: skip
+    group = stages.pop("group_scans", math.nan)
+    print("ingest stages, mean per accepted submission [ms]: "
+          + "  ".join(f"{k} {v:.1f}" for k, v in stages.items())
+          + f"; mean group {group:.1f} scans")  # fmt: skip
+    stages["group_scans"] = group
     growth = f["journal_growth_bytes"]
     per_scan = growth / tally.acknowledged if tally.acknowledged else math.nan
     print(
