@@ -34,11 +34,13 @@ from mapserver.store.recordings.grid_fit import fit_grid
 from tests.recording_helpers import BagSpec, Motion, carmen_lines, write_bag, write_carmen
 
 INTEL = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "intel-corrected.log.gz"
+RESOLUTION = 0.05  # [m] fleetmap's grid and OctoMap's voxels
 SLOW = Motion(velocity=(0.05, 0.02, 0.3))  # stays in the room for minutes
 
 
 def octomap_rate(scans: list[Scan]) -> float | None:
-    """OctoMap's scans/s inserting ``scans`` (None when pyoctomap is not installed)."""
+    """OctoMap's scans/s inserting ``scans`` at fleetmap's resolution (None when
+    pyoctomap is not installed)."""
     try:
         from tests.benchmarks.fusion import insert, octree, point_cloud
     except ImportError:
@@ -46,14 +48,14 @@ def octomap_rate(scans: list[Scan]) -> float | None:
     from mapserver.core.sensor_model import SensorModel
 
     clouds = [point_cloud(scan) for scan in scans]
-    return insert(octree(SensorModel()), scans, clouds).scans_per_s
+    return insert(octree(SensorModel(), RESOLUTION), scans, clouds).scans_per_s
 
 
 def measure(name: str, recording: Recording) -> dict:
     start = time.perf_counter()
     scans = list(recording)
     read_s = time.perf_counter() - start
-    geometry = fit_grid(scans, 0.05)
+    geometry = fit_grid(scans, RESOLUTION)
     fuse_all(BeliefGrid(geometry), scans[:1])  # load the kernels
     start = time.perf_counter()
     streamed = fuse_all(BeliefGrid(geometry), recording)
