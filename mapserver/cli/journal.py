@@ -221,8 +221,8 @@ def _row_problem(row: RawRow) -> str | None:
     """Why a row would be quarantined at start-up (a checksum mismatch first), or None."""
     record = decode_row(row)
     try:
-        body = record.body()
-        Scan.from_dict(body, max_beams=max(1, len(body.get("ranges") or ())))
+        fields = record.fields()
+        Scan.from_dict(fields, max_beams=max(1, len(fields["ranges"])))
     except (RecordError, ScanError) as exc:
         return str(exc)
     return None

@@ -41,8 +41,9 @@ def read_records(
     ``not_after`` [s] (the wall clock now plus the clock's lead) is set aside."""
     for record in journal.records_after(after, until_stamp=until):
         try:
-            body = record.body()
-            scan = Scan.from_dict(body, max_beams, float32_ranges=not record.float64_ranges)
+            scan = Scan.from_dict(
+                record.fields(), max_beams, float32_ranges=not record.float64_ranges
+            )
         except (RecordError, ScanError) as exc:
             yield ReadRecord(record.seq, record.unit_id, None, str(exc))
             continue

@@ -13,11 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
+from mapserver.core.scan import Scan
 from mapserver.store.journal import (
     SCHEMA_VERSION,
     Journal,
     JournalError,
+    RecordError,
     journal_path,
     open_journal_for_replay,
 )
@@ -307,3 +311,41 @@ def test_every_acknowledged_scan_survives_sigkill(tmp_path: Path, synchronous: s
         assert set(acknowledged) <= set(stored)
         assert stored == list(range(1, len(stored) + 1))  # nothing torn, no gaps
         assert journal.unit_stamps()["u0"] >= (max(acknowledged) - 1) // 3
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    st.lists(
+        st.one_of(
+            st.none(),
+            st.just(math.inf),
+            st.just(-math.inf),
+            st.floats(-1e6, 1e6, width=32),
+        ),
+        min_size=1,
+        max_size=64,
+    )
+)
+def test_a_records_fields_make_the_scan_its_json_object_makes(tmp_path, ranges) -> None:
+    """``Record.fields`` (ranges as the array, what replay reads) and ``Record.scan`` (the
+    2.1 object, ranges a list) validate to the same scan, bit for bit."""
+    body = {**scan(), "ranges": ranges}
+    with Journal(tmp_path / f"fields-{len(ranges)}.sqlite3") as journal:
+        journal.append([body])
+        (record,) = journal.records_after(journal.last_seq() - 1)
+    assert record.scan == body
+    from_fields = Scan.from_dict(record.fields())
+    assert from_fields.digest() == Scan.from_dict(record.scan).digest()
+    assert np.array_equal(from_fields.ranges, Scan.from_dict(body).ranges, equal_nan=True)
+
+
+def test_a_damaged_records_fields_raise_its_problem(journal: Journal) -> None:
+    journal.append([scan()])
+    with journal._lock:
+        journal._db().execute("UPDATE scans SET body = ?", (b"{not json",))
+    (record,) = journal.records_after(0)
+    assert record.scan is None and record.header is None and record.ranges is None
+    with pytest.raises(RecordError, match="checksum mismatch"):
+        record.fields()
