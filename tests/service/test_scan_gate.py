@@ -63,3 +63,20 @@ def test_a_refused_single_scan_changes_nothing():
     assert isinstance(refused, IngestError) and refused.status == 422
     assert [s.unit_id for s in check.new] == ["u1"] and g.clock.map_stamp == 1.0
     assert isinstance(check.admit([scan(2.0, "u9")]), list)  # u9 has no stamp recorded
+
+
+def test_a_new_scan_is_taken_unhashed_and_only_a_repeat_at_its_stamp_is_hashed():
+    g = gate()
+    first, later = scan(1.0), scan(2.0)
+    for taken in (first, later):
+        check = g.open_group()
+        assert isinstance(check.admit([taken]), list)
+        check.commit([Ack(1, 1)])
+    hashed = lambda s: "_digest" in vars(s)  # noqa: E731 - functools.cached_property's slot
+    assert not hashed(first) and not hashed(later)  # no digest for a scan simply taken
+    check = g.open_group()
+    retry, other = scan(2.0), scan(2.0, y=6.0)
+    assert check.answers(check.admit([retry]), []) == [Ack(1, 1)]  # the same scan again
+    refused = check.admit([other])
+    assert isinstance(refused, IngestError) and "already sent another scan" in refused.detail
+    assert hashed(later) and hashed(retry) and hashed(other) and not hashed(first)
