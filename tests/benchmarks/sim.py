@@ -461,8 +461,8 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         )
         print(f"profile, {name} sim alone, {caster}: {prof['ms_per_step']:.1f} ms a step "
               f"under cProfile; own time per step:")  # fmt: skip
-        for name, ms, pct in prof["top"]:
-            print(f"  {ms:8.2f} ms {pct:5.1f}%  {name}")
+        for function, ms, pct in prof["top"]:
+            print(f"  {ms:8.2f} ms {pct:5.1f}%  {function}")
     if args.json:
         print(json.dumps(result))
     return result
