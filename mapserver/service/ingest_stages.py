@@ -16,11 +16,11 @@ upper bound, ``+Inf`` last), read by ``GET /metrics``.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
-
-import numpy as np
 
 STAGES = ("queued", "journal", "fuse_wait", "fuse", "answered")
 STAGE_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)  # [s]
@@ -47,21 +47,24 @@ class Histogram:
 
 
 class _Bins:
-    """Counts per bucket (not cumulative) and the sum, for one series."""
+    """Counts per bucket (not cumulative) and the sum, for one series. Plain Python: the
+    fusion thread records a few values a group, where each numpy call would cost more
+    than the counting (and a chance to wait for the GIL)."""
 
     def __init__(self, bounds: Sequence[float]) -> None:
         self.bounds = tuple(bounds)
-        self.counts = np.zeros(len(self.bounds) + 1, dtype=np.int64)
+        self.counts = [0] * (len(self.bounds) + 1)
         self.total = 0.0
 
-    def add(self, values: np.ndarray) -> None:
-        # Prometheus' buckets hold values <= their bound: side="left" puts a value equal
+    def add(self, value: float, times: int = 1) -> None:
+        """``value`` observed ``times`` times."""
+        # Prometheus' buckets hold values <= their bound: bisect_left puts a value equal
         # to a bound in that bound's bucket.
-        np.add.at(self.counts, np.searchsorted(self.bounds, values, side="left"), 1)
-        self.total += float(values.sum())
+        self.counts[bisect.bisect_left(self.bounds, value)] += times
+        self.total += value * times
 
     def histogram(self) -> Histogram:
-        return Histogram(self.bounds, tuple(int(c) for c in np.cumsum(self.counts)), self.total)
+        return Histogram(self.bounds, tuple(itertools.accumulate(self.counts)), self.total)
 
 
 class IngestStages:
@@ -87,18 +90,16 @@ class IngestStages:
         taken by the fusion thread, answered) and its count of new scans."""
         if not submitted:
             return
-        start = np.asarray(submitted, dtype=np.float64)
-        times = {
-            "queued": taken - start,
-            "journal": np.full(len(start), journaled - taken),
-            "fuse_wait": np.full(len(start), fuse_taken - journaled),
-            "fuse": np.full(len(start), answered - fuse_taken),
-            "answered": answered - start,
-        }
+        n = len(submitted)
+        stages = self._stages
         with self._lock:
-            for stage, values in times.items():
-                self._stages[stage].add(values)
-            self._groups.add(np.array([scans]))
+            for start in submitted:
+                stages["queued"].add(taken - start)
+                stages["answered"].add(answered - start)
+            stages["journal"].add(journaled - taken, n)
+            stages["fuse_wait"].add(fuse_taken - journaled, n)
+            stages["fuse"].add(answered - fuse_taken, n)
+            self._groups.add(scans)
 
     def stages(self) -> dict[str, Histogram]:
         """Each stage's histogram [s], in pipeline order (``answered`` last)."""
