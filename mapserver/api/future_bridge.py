@@ -28,10 +28,12 @@ _BRIDGES_LOCK = threading.Lock()
 
 
 class FutureBridge:
-    """Hands completed concurrent futures to one event loop's awaitables, in bursts."""
+    """Hands completed concurrent futures to one event loop's awaitables, in bursts. It
+    holds its loop weakly: ``bridge_for`` keeps a bridge per loop, and a strong reference
+    from the bridge would keep every loop it ever served alive."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        self._loop_ref = weakref.ref(loop)
         self._completed: deque[tuple[Future, asyncio.Future]] = deque()
         self._lock = threading.Lock()
         self._scheduled = False
@@ -40,7 +42,10 @@ class FutureBridge:
     def wrap(self, future: Future) -> asyncio.Future:
         """An awaitable on this bridge's loop with ``future``'s result or exception (call
         from the loop's thread)."""
-        waiter = self._loop.create_future()
+        loop = asyncio.get_running_loop()
+        if loop is not self._loop_ref():
+            raise RuntimeError("FutureBridge.wrap: called from another loop than the bridge's")
+        waiter = loop.create_future()
         future.add_done_callback(lambda done: self._complete(done, waiter))
         return waiter
 
@@ -53,11 +58,15 @@ class FutureBridge:
                 return
             self._scheduled = True
             self.wakeups += 1
+        loop = self._loop_ref()
         try:
-            self._loop.call_soon_threadsafe(self._settle)
-        except RuntimeError:  # the loop is closed: nobody awaits these any more
+            if loop is None:
+                raise RuntimeError("the loop is gone")
+            loop.call_soon_threadsafe(self._settle)
+        except RuntimeError:  # the loop is closed or gone: nobody awaits these any more
             with self._lock:
                 self._scheduled = False
+                self._completed.clear()
 
     def _settle(self) -> None:
         """On the loop: give every queued awaitable its future's outcome. The flag is

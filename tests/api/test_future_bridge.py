@@ -4,7 +4,10 @@ completions from another thread wakes the event loop once."""
 from __future__ import annotations
 
 import asyncio
+import gc
 import threading
+import weakref
+from collections import deque
 from concurrent.futures import Future
 
 import pytest
@@ -95,3 +98,30 @@ def test_each_loop_has_its_own_bridge():
         return bridge_for(loop)
 
     assert asyncio.run(bridge_of_running_loop()) is not asyncio.run(bridge_of_running_loop())
+
+
+def test_a_bridge_lets_its_loop_go_and_drops_what_completes_after():
+    loop = asyncio.new_event_loop()
+    bridge = bridge_for(loop)
+    future = Future()
+    waiter = loop.run_until_complete(_wrap_on(bridge, future))
+    loop.close()
+    future.set_result(1)  # the loop is closed: nothing to wake, nothing kept
+    assert bridge._completed == deque() and not waiter.done()
+    ref = weakref.ref(loop)
+    del waiter, future, loop  # the request's own references go with it
+    gc.collect()
+    assert ref() is None  # the per-loop table does not keep a loop alive
+
+
+async def _wrap_on(bridge: FutureBridge, future: Future) -> asyncio.Future:
+    return bridge.wrap(future)
+
+
+def test_wrapping_on_another_loop_than_the_bridges_is_refused():
+    async def main() -> None:
+        other = FutureBridge(asyncio.new_event_loop())
+        with pytest.raises(RuntimeError, match="another loop"):
+            other.wrap(Future())
+
+    asyncio.run(main())
