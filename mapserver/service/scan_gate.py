@@ -40,11 +40,12 @@ class Ack:
 
 @dataclass(frozen=True)
 class UnitLatest:
-    """A unit's newest scan: its stamp [s], the scan (None: not known yet, read from the
-    journal when needed) and ack (None while it waits in its group at ``slot``, its
-    index among the group's new scans). The scan is kept, not its digest: a digest is
-    computed only for a scan repeated at its unit's latest stamp (a retry, or a 409),
-    not for every scan taken (one scan a unit: 8.6 kB at 1,080 beams)."""
+    """A unit's newest scan: its stamp [s], the scan while its group is checked (None
+    once journaled: read back from the journal when needed) and ack (None while it waits
+    in its group at ``slot``, its index among the group's new scans). Neither the scan
+    nor its digest is kept past its group: a scan repeated at its unit's latest stamp (a
+    retry, or a 409) is compared with the journaled one, so a scan taken is never hashed
+    and the gate holds a few numbers per unit however many unit ids have posted."""
 
     stamp: float
     scan: Scan | None
@@ -123,7 +124,7 @@ class GroupCheck:
         """The group's new scans were journaled with these acks: its state is the gate's."""
         for unit, entry in self._latest.items():
             if entry.slot is not None:
-                self._latest[unit] = UnitLatest(entry.stamp, entry.scan, acks[entry.slot])
+                self._latest[unit] = UnitLatest(entry.stamp, None, acks[entry.slot])
         self._gate._latest = self._latest
 
     def abandon(self) -> None:
@@ -170,13 +171,13 @@ class GroupCheck:
 
     def _repeat_of(self, scan: Scan, last: UnitLatest) -> UnitLatest | None:
         """``last`` (with its ack) when ``scan`` is that very scan again (equal digests),
-        else None. A scan this process has not seen (after a restart) is read from the
-        journal."""
+        else None. A journaled scan is read back from the journal (its ack kept; after a
+        restart, made from its seq)."""
         if last.scan is None:
             found = self._gate._find_scan(scan.unit_id, scan.stamp)
             if found is None:
                 return None
             seq, body = found
             stored = Scan.from_dict(body, max_beams=self._gate._max_beams)
-            last = UnitLatest(last.stamp, stored, Ack(seq, seq))
+            last = UnitLatest(last.stamp, stored, last.ack or Ack(seq, seq))
         return last if scan.digest() == last.scan.digest() else None

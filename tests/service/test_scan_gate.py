@@ -66,17 +66,20 @@ def test_a_refused_single_scan_changes_nothing():
 
 
 def test_a_new_scan_is_taken_unhashed_and_only_a_repeat_at_its_stamp_is_hashed():
-    g = gate()
+    journal = {}  # (unit, stamp) -> (seq, scan object), as the journal answers find_scan
+    g = gate(find_scan=lambda unit, stamp: journal.get((unit, stamp)))
     first, later = scan(1.0), scan(2.0)
-    for taken in (first, later):
+    for seq, taken in enumerate((first, later), start=1):
         check = g.open_group()
         assert isinstance(check.admit([taken]), list)
-        check.commit([Ack(1, 1)])
+        journal[("u1", taken.stamp)] = (seq, taken.to_dict())
+        check.commit([Ack(seq, seq + 10)])
     hashed = lambda s: "_digest" in vars(s)  # noqa: E731 - functools.cached_property's slot
     assert not hashed(first) and not hashed(later)  # no digest for a scan simply taken
+    assert g._latest["u1"].scan is None  # nor the scan kept once journaled
     check = g.open_group()
     retry, other = scan(2.0), scan(2.0, y=6.0)
-    assert check.answers(check.admit([retry]), []) == [Ack(1, 1)]  # the same scan again
+    assert check.answers(check.admit([retry]), []) == [Ack(2, 12)]  # its own ack again
     refused = check.admit([other])
     assert isinstance(refused, IngestError) and "already sent another scan" in refused.detail
-    assert hashed(later) and hashed(retry) and hashed(other) and not hashed(first)
+    assert hashed(retry) and hashed(other) and not hashed(first) and not hashed(later)
