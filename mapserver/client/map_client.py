@@ -93,7 +93,7 @@ from mapserver.api.schemas import (
 )
 from mapserver.core.errors import FleetmapError, dotted
 from mapserver.core.geometry import GridGeometry
-from mapserver.core.scan import Scan
+from mapserver.core.scan import Scan, json_ranges
 from mapserver.core.scan_binary import CONTENT_TYPE as BINARY_SCAN_TYPE
 from mapserver.core.scan_binary import encode_batch, encode_scan
 
@@ -611,7 +611,7 @@ def _scan_body(scan: Scan | Mapping[str, Any], plain: bool) -> Any:
         body = scan.to_dict(with_ranges=False)
         no_return = 2.0 * scan.range_max + 1.0
         ranges = np.where(scan.ranges == math.inf, no_return, scan.ranges)
-        body["ranges"] = [None if r != r else r for r in ranges.tolist()] if plain else ranges
+        body["ranges"] = json_ranges(ranges) if plain else ranges
         return body
     if isinstance(scan, Mapping):
         return dict(scan)

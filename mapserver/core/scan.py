@@ -139,7 +139,7 @@ class Scan:
             "range_max": self.range_max,
         }
         if with_ranges:
-            out["ranges"] = [None if math.isnan(r) else float(r) for r in self.ranges.tolist()]
+            out["ranges"] = json_ranges(self.ranges)
         if self.pose_std is not None:
             out["pose_std"] = {"xy": self.pose_std.xy, "yaw": self.pose_std.yaw}
         return out
@@ -209,6 +209,12 @@ class Scan:
             pose_std=pose_std,
             frame=frame,
         )
+
+
+def json_ranges(ranges: np.ndarray) -> list[float | None]:
+    """Ranges [m] as the docs/http-api.md 2.1 JSON list: each a float, NaN (invalid) as
+    null (``Infinity``, no return, stays a float: JSON encoders decide how to write it)."""
+    return [None if r != r else r for r in ranges.tolist()]
 
 
 def classify_ranges(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:

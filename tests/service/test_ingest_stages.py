@@ -60,7 +60,7 @@ def test_every_accepted_submission_is_counted_once_its_ack_is_out(tmp_path):
         assert refused.exception() is not None  # its stamp went backwards: not counted
         stages = service.stages.stages()
         assert {stage: h.count for stage, h in stages.items()} == dict.fromkeys(STAGES, 20)
-        assert service.stages.group_sizes().total == 20  # every new scan in one group
+        assert service.stages.group_sizes().total == 20  # every new scan, in some group
         answered = stages["answered"].total
         parts = sum(stages[s].total for s in ("queued", "journal", "fuse_wait", "fuse"))
         assert np.isclose(answered, parts)  # the stages add up to the whole
