@@ -365,7 +365,7 @@ def _draw_timeline(ax: Axes, record: RunRecord, end: float) -> None:
     named = range(0, len(units), step)
     ax.set_yticks(list(named), [units[i] for i in named], fontsize=8 if len(units) > 12 else 9)
     if step > 1:
-        ax.set_ylabel(f"{len(units)} units, every {step}th named")
+        ax.set_ylabel(f"{len(units)} units, one in {step} named")
     ax.set_ylim(max(len(units), 1) - 0.5, -0.5)
     ax.set_xlim(0.0, max(end, 1.0))
     ax.set_xlabel("sim time [s]")

@@ -66,6 +66,7 @@ def test_the_timeline_names_every_unit_of_a_small_fleet_and_every_kth_of_a_large
     assert names == [f"u{k}" for k in range(1, 13)] and label == ""
     names, label = timeline_labels(1000)  # thousand_units: every 25th, in natural order
     assert names == [f"u{k}" for k in range(1, 1001, 25)] and len(names) == 40
-    assert label == "1000 units, every 25th named"
-    names, _ = timeline_labels(100)  # hundred_units: every 3rd
+    assert label == "1000 units, one in 25 named"
+    names, label = timeline_labels(100)  # hundred_units: every 3rd
     assert names[:3] == ["u1", "u4", "u7"] and len(names) == 34
+    assert label == "100 units, one in 3 named"  # not "every 3th"
