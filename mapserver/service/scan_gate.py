@@ -16,7 +16,7 @@ from typing import Any
 
 from mapserver.core.errors import FleetmapError
 from mapserver.core.geometry import GridGeometry
-from mapserver.core.scan import Scan
+from mapserver.core.scan import Scan, ScanError
 from mapserver.core.text import quote
 from mapserver.service.map_clock import MapClock
 
@@ -178,6 +178,9 @@ class GroupCheck:
             if found is None:
                 return None
             seq, body = found
-            stored = Scan.from_dict(body, max_beams=self._gate._max_beams)
+            try:
+                stored = Scan.from_dict(body, max_beams=self._gate._max_beams)
+            except ScanError:  # not readable as a scan now (a lower max_beams): not a repeat
+                return None
             last = UnitLatest(last.stamp, stored, last.ack or Ack(seq, seq))
         return last if scan.digest() == last.scan.digest() else None

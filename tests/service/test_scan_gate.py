@@ -83,3 +83,13 @@ def test_a_new_scan_is_taken_unhashed_and_only_a_repeat_at_its_stamp_is_hashed()
     refused = check.admit([other])
     assert isinstance(refused, IngestError) and "already sent another scan" in refused.detail
     assert hashed(retry) and hashed(other) and not hashed(first) and not hashed(later)
+
+
+def test_a_journaled_scan_that_no_longer_reads_refuses_the_repeat_alone():
+    stored = scan_body(stamp=4.0)
+    g = gate({"u1": 4.0}, lambda unit, stamp: (12, stored))
+    g._max_beams = 2  # the server restarted with a lower beam limit than it journaled under
+    check = g.open_group()
+    refused = check.admit([scan(4.0)])
+    assert isinstance(refused, IngestError) and refused.status == 409
+    assert isinstance(check.admit([scan(4.0, "u2")]), list)  # the group goes on
