@@ -51,6 +51,7 @@ from mapserver.api.schemas import (
 from mapserver.api.unit_board import UnitBoard
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.text import quote
+from mapserver.service.map_process import MapProcess, open_map_service
 from mapserver.service.map_service import MapService
 from mapserver.service.settings import Settings
 from planner.grid_search import GridPlanner
@@ -58,14 +59,15 @@ from planner.grid_search import GridPlanner
 
 def create_app(
     settings: Settings,
-    service: MapService | None = None,
+    service: MapService | MapProcess | None = None,
     planner_factory: Callable[[GridGeometry], GridPlanning] | None = None,
 ) -> FastAPI:
-    """The app for ``settings``; ``service`` defaults to a new MapService on its data dir;
+    """The app for ``settings``; ``service`` defaults to the map of its data dir, in this
+    process or in its own (``server.map_process``, ``map_process.open_map_service``);
     ``POST /v1/plan`` plans with ``planner_factory(geometry)`` (by default the grid A* /
     Dijkstra of ``planner.grid_search``, with ``reads.plan_landmarks`` landmarks over the
     static map's lower bound when the service has a static map)."""
-    service = service or MapService(settings)
+    service = service or open_map_service(settings)
     if planner_factory is None:
         landmarks = settings.reads.plan_landmarks if service.planning_bounds is not None else 0
         planner_factory = partial(GridPlanner, landmarks=landmarks)

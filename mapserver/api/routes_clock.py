@@ -11,22 +11,21 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from mapserver.api.auth import DECLARE_CLOCK, READ, require
 from mapserver.api.body import body_schema, read_model
 from mapserver.api.schemas import ClockIn, ClockOut, DeclaredClock, ErrorOut
-from mapserver.service.map_clock import ClockDeclarationError, MapClock
+from mapserver.service.map_clock import ClockDeclarationError, ClockView
 
 router = APIRouter(tags=["clock"])
 
 
-def clock_out(clock: MapClock) -> ClockOut:
-    """The clock's state as ``GET /v1/clock`` answers it."""
-    reference = clock.reference()
-    declared = clock.declared()
+def clock_out(view: ClockView) -> ClockOut:
+    """The clock's state (``MapClock.view()``) as ``GET /v1/clock`` answers it."""
+    reference, declared = view.reference, view.declared
     return ClockOut(
         reference=reference.kind,
         now=reference.value,
-        wall=clock.wall_clock(),
-        map_stamp=clock.map_stamp if math.isfinite(clock.map_stamp) else None,
+        wall=view.wall,
+        map_stamp=view.map_stamp if math.isfinite(view.map_stamp) else None,
         declared=None if declared is None else DeclaredClock(now=declared[0], age_s=declared[1]),
-        max_lead_s=clock.max_lead_s,
+        max_lead_s=view.max_lead_s,
     )
 
 
@@ -38,7 +37,7 @@ def clock_out(clock: MapClock) -> ClockOut:
     summary="What a scan's stamp is judged against now",
 )
 def get_clock(request: Request) -> ClockOut:
-    return clock_out(request.app.state.service.clock)
+    return clock_out(request.app.state.service.clock.view())
 
 
 @router.put(
@@ -51,9 +50,9 @@ def get_clock(request: Request) -> ClockOut:
 )
 async def put_clock(request: Request) -> ClockOut:
     declared = await read_model(request, ClockIn)
-    clock: MapClock = request.app.state.service.clock
+    clock = request.app.state.service.clock  # a MapClock, or a map process's (map_process)
     try:
         clock.declare(declared.now)
     except ClockDeclarationError as exc:
         raise HTTPException(422, str(exc)) from None
-    return clock_out(clock)
+    return clock_out(clock.view())

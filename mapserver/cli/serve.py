@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,7 @@ def run_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from mapserver.api.app import create_app
+    from mapserver.service.map_process import MapProcessError, open_map_service
     from mapserver.service.map_service import DataDirError
     from mapserver.store.journal import JournalError
 
@@ -75,8 +78,9 @@ def run_serve(args: argparse.Namespace) -> int:
         print(f"fleetmap serve: error: {exc}", file=sys.stderr)
         return 2
     try:
-        app = create_app(settings)
-    except (DataDirError, JournalError) as exc:
+        service = open_map_service(settings, on_lost=_stop_serving)
+        app = create_app(settings, service)
+    except (DataDirError, JournalError, MapProcessError) as exc:
         listener.close()
         print(f"fleetmap serve: error: {exc}", file=sys.stderr)
         return 2
@@ -95,6 +99,11 @@ def run_serve(args: argparse.Namespace) -> int:
 
     AnnouncedServer(uvicorn_config(app, settings)).run(sockets=[listener])
     return 0
+
+
+def _stop_serving() -> None:
+    """The map process is gone: stop as on SIGTERM (answer what is in flight, exit)."""
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def listening_line(settings: Settings, port: int) -> str:

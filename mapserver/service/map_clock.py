@@ -109,6 +109,19 @@ class ClockLead:
         )
 
 
+@dataclass(frozen=True)
+class ClockView:
+    """The clock's state at one moment: the reference binding, the declared clock ((its
+    reading [s], wall seconds since it was declared) or None), the wall clock [s], the
+    map's newest stamp [s] (-inf before any scan) and the lead allowed [s]."""
+
+    reference: Reference
+    declared: tuple[float, float] | None
+    wall: float
+    map_stamp: float
+    max_lead_s: float
+
+
 class MapClock:
     """The references of the module docstring, and the map's time they follow.
 
@@ -196,6 +209,12 @@ class MapClock:
         if declared is None or wall - declared[1] > self.sim_ttl_s:
             return None
         return declared[0], wall - declared[1]
+
+    def view(self) -> ClockView:
+        """What ``GET /v1/clock`` shows, read at one moment."""
+        return ClockView(
+            self.reference(), self.declared(), self.wall_clock(), self.map_stamp, self.max_lead_s
+        )
 
     def state(self) -> tuple[float, float]:
         """An opaque copy of what has been observed."""

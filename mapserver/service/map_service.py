@@ -44,6 +44,7 @@ import math
 import queue
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,6 +125,26 @@ def _units(scans: list[Scan]) -> str:
     line or a message."""
     units = sorted({scan.unit_id for scan in scans})
     return quote(units[0] if len(units) == 1 else units)
+
+
+def _take_waiting(waiting: queue.Queue, scans_of: Callable[[Any], int]) -> tuple[list, bool]:
+    """The items of ``waiting`` (at least one, blocking for it; more while they hold
+    fewer than MAX_GROUP scans, counted by ``scans_of``) and whether a None (stop) came
+    after them."""
+    first = waiting.get()
+    if first is None:
+        return [], True
+    items, count = [first], scans_of(first)
+    while count < MAX_GROUP:
+        try:
+            item = waiting.get_nowait()
+        except queue.Empty:
+            break
+        if item is None:
+            return items, True
+        items.append(item)
+        count += scans_of(item)
+    return items, False
 
 
 def _fail(submissions: list[_Submission], exc: Exception) -> None:
@@ -322,20 +343,7 @@ class MapService:
     def _next_group(self) -> tuple[list[_Submission], bool]:
         """The submissions waiting (at least one, at most MAX_GROUP scans) and whether
         close() asked to stop after them."""
-        first = self._queue.get()
-        if first is None:
-            return [], True
-        group, count = [first], len(first.scans)
-        while count < MAX_GROUP:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                break
-            if item is None:
-                return group, True
-            group.append(item)
-            count += len(item.scans)
-        return group, False
+        return _take_waiting(self._queue, lambda sub: len(sub.scans))
 
     def _admit_and_journal(self, group: list[_Submission], taken: float) -> list[_Journaled]:
         """State checks per submission (``scan_gate``) and one journal transaction; the
@@ -407,57 +415,73 @@ class MapService:
         sub.future.set_exception(IngestError(503, f"journal write failed: {clip(str(exc))}"))
 
     def _fuse_loop(self) -> None:
-        """Stage 2 (thread ``map-fuse``): fuse each journaled group in order, then answer
-        its submissions, so an ack's map version always includes its scan."""
+        """Stage 2 (thread ``map-fuse``): fuse the journaled groups waiting, in order, as
+        one kernel call (``_next_fusion``), then answer their submissions, so an ack's
+        map version always includes its scan."""
         while True:
-            journaled = self._fuse_queue.get()
-            if journaled is None:
+            batch, stop = self._next_fusion()
+            if batch:
+                try:
+                    self._fuse(batch, time.monotonic())
+                    self._snapshot_if_due()
+                except Exception as exc:  # a bug: answer 500, never leave callers waiting
+                    logger.exception("fusion failed")
+                    _fail([sub for journaled in batch for sub, _ in journaled.accepted], exc)
+            if stop:
                 return
-            try:
-                self._fuse(journaled, time.monotonic())
-                self._snapshot_if_due()
-            except Exception as exc:  # a bug: answer 500, never leave callers waiting
-                logger.exception("fusion failed")
-                _fail([sub for sub, _ in journaled.accepted], exc)
 
-    def _fuse(self, journaled: _Journaled, taken: float) -> None:
-        """Fuse a journaled group's new scans (the costmap follows lazily) and answer it.
-        When fusing the group fails, it is fused submission by submission
-        (``_fuse_apart``) and only the submissions that fail are answered with the error.
-        taken: [s] monotonic, when this thread took the group; its stage times are
-        recorded (``stages``) before any of it is answered."""
-        failed: dict[int, IngestError] = {}  # slot among the new scans -> its answer
-        if journaled.new:
+    def _next_fusion(self) -> tuple[list[_Journaled], bool]:
+        """The journaled groups waiting (at least one, at most about MAX_GROUP scans) and
+        whether the ingest thread has stopped after them."""
+        return _take_waiting(self._fuse_queue, lambda journaled: len(journaled.new))
+
+    def _fuse(self, batch: list[_Journaled], taken: float) -> None:
+        """Fuse the journaled groups' new scans in one kernel call (the costmap follows
+        lazily) and answer them. When that fails, each group is fused submission by
+        submission (``_fuse_apart``) and only the submissions that fail are answered with
+        the error. taken: [s] monotonic, when this thread took the groups; their stage
+        times are recorded (``stages``) before any of them is answered."""
+        failed: list[dict[int, IngestError]] = [{} for _ in batch]  # per group: slot -> answer
+        new = [scan for journaled in batch for scan in journaled.new]
+        if new:
             with self._lock:
                 t0 = time.perf_counter()
                 try:
-                    results = self.belief.fuse_many(journaled.new)
+                    results = self.belief.fuse_many(new)
                 except Exception:
                     logger.exception("fusing a group of %d scans failed: fusing them apart",
-                                     len(journaled.new))  # fmt: skip
-                    results, failed = self._fuse_apart(journaled)
-                self.version = journaled.acks[-1].map_version
+                                     len(new))  # fmt: skip
+                    results = []
+                    for k, journaled in enumerate(batch):
+                        fused, failed[k] = self._fuse_apart(journaled)
+                        results += fused
+                self.version = max(j.acks[-1].map_version for j in batch if j.acks)
                 self._dirty += [r.box for r in results]
                 if time.monotonic() - self._costmap_refreshed >= self._refresh_s:
                     self._costmap_current()
                 elif len(self._dirty) > MAX_DIRTY_BOXES:
                     self._dirty = merge_regions(self._dirty)
                 self.fusion_seconds += time.perf_counter() - t0
-                self._since_snapshot += len(journaled.new)
-        self.stages.record_group(
-            [sub.submitted for sub, _ in journaled.accepted],
-            journaled.taken,
-            journaled.journaled,
-            taken,
-            time.monotonic(),
-            len(journaled.new),
-        )
-        for sub, entries in journaled.accepted:
-            error = next((failed[e.slot] for e in entries if e.slot in failed), None)
-            if error is not None:
-                sub.future.set_exception(error)
-            else:
-                sub.future.set_result(GroupCheck.answers(entries, journaled.acks))
+                self._since_snapshot += len(new)
+        answered = time.monotonic()
+        for journaled in batch:
+            self.stages.record_group(
+                [sub.submitted for sub, _ in journaled.accepted],
+                journaled.taken,
+                journaled.journaled,
+                taken,
+                answered,
+                len(journaled.new),
+            )
+        for journaled, group_failed in zip(batch, failed, strict=True):
+            for sub, entries in journaled.accepted:
+                error = next(
+                    (group_failed[e.slot] for e in entries if e.slot in group_failed), None
+                )
+                if error is not None:
+                    sub.future.set_exception(error)
+                else:
+                    sub.future.set_result(GroupCheck.answers(entries, journaled.acks))
 
     def _fuse_apart(
         self, journaled: _Journaled

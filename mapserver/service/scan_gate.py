@@ -29,6 +29,10 @@ class IngestError(FleetmapError, Exception):
         self.status = status
         self.detail = detail
 
+    def __reduce__(self) -> tuple:
+        """Pickled whole (the map process sends refusals to the front)."""
+        return (type(self), (self.status, self.detail))
+
 
 @dataclass(frozen=True)
 class Ack:

@@ -345,6 +345,9 @@ class ServerSettings(Section):
         and loopback addresses, e.g. a name that /etc/hosts points at 127.0.0.1.
     log_burst, log_interval_s [s]: at most ``log_burst`` log records per message template
         per ``log_interval_s``; the next one after that names how many were suppressed.
+    map_process: run the map (gate, journal, fusion, costmap) in a process of its own
+        beside the HTTP front (``mapserver.service.map_process``), so the two do not share
+        one interpreter's GIL; the durability promises and the journal order are the same.
     """
 
     keep_alive_s: float = Field(default=5.0, gt=0, le=3600, allow_inf_nan=False)
@@ -355,6 +358,7 @@ class ServerSettings(Section):
     local_hostnames: list[str] = []
     log_burst: int = Field(default=20, gt=0)
     log_interval_s: float = Field(default=60.0, gt=0, allow_inf_nan=False)
+    map_process: bool = False
 
 
 class JournalSettings(Section):

@@ -91,6 +91,7 @@ from typing import Any, Literal
 
 import numpy as np
 import orjson
+import zstandard
 
 from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import json_ranges
@@ -866,19 +867,33 @@ class Journal:
         return [int(row[0]) for row in self._read("SELECT seq FROM snapshots ORDER BY seq")]
 
 
+SNAPSHOT_ZSTD_LEVEL = 1
+"""zstd level of a snapshot's arrays: level 1 compresses the 26 MB of a 2 M-cell grid in
+milliseconds with the GIL released (zlib took about a second a 4 M-cell grid), and the
+journal's write of the smaller blob holds up the scans' appends for less (one journal
+lock): docs/scaling.md, "Snapshots"."""
+
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # a zstd frame's first bytes (RFC 8878); an npz starts "PK"
+
+
 def encode_arrays(arrays: Mapping[str, np.ndarray]) -> bytes:
-    """``np.savez`` bytes of named arrays (no pickled objects). Uncompressed: zlib on a
-    4 M-cell grid costs about a second of CPU that the fleet's scans need more."""
+    """``np.savez`` bytes of named arrays (no pickled objects), zstd-compressed."""
     buffer = io.BytesIO()
     for name, array in arrays.items():
         if np.asarray(array).dtype == object:
             raise ValueError(f"arrays[{name!r}] must be a numeric array, got dtype object")
     np.savez(buffer, allow_pickle=False, **{k: np.asarray(v) for k, v in arrays.items()})
-    return buffer.getvalue()
+    return zstandard.ZstdCompressor(level=SNAPSHOT_ZSTD_LEVEL).compress(buffer.getbuffer())
 
 
 def decode_arrays(blob: bytes) -> dict[str, np.ndarray]:
-    """The named arrays of ``encode_arrays`` bytes."""
+    """The named arrays of ``encode_arrays`` bytes, or of a bare npz (a snapshot saved
+    before snapshots were compressed, 2026-12-05)."""
+    if bytes(blob[:4]) == ZSTD_MAGIC:
+        try:
+            blob = zstandard.ZstdDecompressor().decompress(blob)
+        except zstandard.ZstdError as exc:
+            raise ValueError(f"the zstd frame does not decompress: {exc}") from None
     with np.load(io.BytesIO(blob), allow_pickle=False) as archive:
         return {name: archive[name] for name in archive.files}
 

@@ -64,6 +64,7 @@ import threading  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
+from typing import Any  # noqa: E402
 
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
@@ -324,7 +325,7 @@ def flat_out_rates(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
     finally:
         ceiling.terminate()
         ceiling.wait()
-    server = LoggedServer(tmp / "flat-out", {"grid": grid_for(args.units)})
+    server = LoggedServer(tmp / "flat-out", server_settings(args))
     try:
         warm_up(server.url, args)
         ours, _, our_wall = load(server.port, args, args.ceiling_seconds, flat_out=True)
@@ -453,7 +454,7 @@ def greedy_compare(args: argparse.Namespace, tmp: Path) -> dict:
     """The normal units for ``--seconds`` alone, then as long again beside the greedy
     client, on one server (default settings but the grid); their rate and latency in
     each phase, and the greedy client's replies and acknowledged beams/s."""
-    server = LoggedServer(tmp / "greedy", {"grid": grid_for(args.units)})
+    server = LoggedServer(tmp / "greedy", server_settings(args))
     try:
         warm_up(server.url, args)
         alone, _, wall_alone = load(server.port, args, args.seconds)
@@ -542,6 +543,15 @@ def wait_for_port(port: int, timeout: float = 60.0) -> None:
     raise RuntimeError(f"nothing listens on port {port}")
 
 
+def server_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The settings of the server under load: a grid for the units' lattice and, with
+    ``--map-process``, the map in a process of its own."""
+    settings: dict[str, Any] = {"grid": grid_for(args.units)}
+    if args.map_process:
+        settings["server"] = {"map_process": True}
+    return settings
+
+
 def lattice_columns(units: int) -> int:
     """Columns of the units' lattice: about square in metres (10 x 10 cells for 100)."""
     return max(1, math.ceil(math.sqrt(units * CELL_Y / CELL_X * 2)))
@@ -592,6 +602,10 @@ def main() -> None:
     parser.add_argument(
         "--greedy-honours-retry-after", action="store_true", help="it waits after a 429"
     )
+    parser.add_argument(
+        "--map-process", action="store_true",
+        help="the server runs its map in a process of its own (server.map_process)",
+    )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print figures as JSON last")
     args = parser.parse_args()
     if args.greedy_connections > 0:
@@ -602,7 +616,7 @@ def main() -> None:
         return
 
     with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
-        server = LoggedServer(Path(tmp) / "data", {"grid": grid_for(args.units)})
+        server = LoggedServer(Path(tmp) / "data", server_settings(args))
         try:
             warm_ms = warm_up(server.url, args)
             stages_before = ingest_stage_totals(server.url)

@@ -85,16 +85,18 @@ class LoggedServer(EmbeddedServer):
         return self.proc.poll() is None
 
     def rss_mib(self) -> float | None:
-        """[MiB] VmRSS of the server process (None once it has exited)."""
-        return rss_mib(self.pid)
+        """[MiB] VmRSS of the server process and its children (its map process with
+        ``server.map_process``); None once it has exited."""
+        sizes = [rss_mib(pid) for pid in (self.pid, *child_pids(self.pid))]
+        return None if sizes[0] is None else sum(s for s in sizes if s is not None)
 
     def cpu_seconds(self) -> float | None:
-        """[s] user + system CPU time of the server process so far (None once exited)."""
-        try:
-            fields = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
+        """[s] user + system CPU time of the server process and its running children so
+        far (None once it has exited)."""
+        own = cpu_seconds(self.pid)
+        if own is None:
             return None
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return own + sum(cpu_seconds(pid) or 0.0 for pid in child_pids(self.pid))
 
     def log_bytes(self) -> int:
         return self.log_path.stat().st_size
@@ -110,6 +112,24 @@ class LoggedServer(EmbeddedServer):
     def journal_count(self) -> int | None:
         """Scans in the journal (read-only; None if it cannot be read)."""
         return journal_count(self.data_dir)
+
+
+def child_pids(pid: int) -> list[int]:
+    """The running processes whose parent is ``pid``."""
+    try:
+        listed = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+    return [int(child) for child in listed]
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """[s] user + system CPU time of process ``pid`` so far (None if it has exited)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def rss_mib(pid: int) -> float | None:

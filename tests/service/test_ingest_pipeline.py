@@ -59,3 +59,41 @@ def test_groups_fuse_in_journal_order_to_the_map_a_replay_builds(tmp_path):
         assert np.array_equal(replayed.belief.raw_log_odds(), live)
     finally:
         replayed.close()
+
+
+def test_groups_waiting_for_fusion_are_fused_in_one_kernel_call(tmp_path):
+    """While the fusion thread is held, ten submissions are journaled as groups of their
+    own; once it is free, it fuses all of them in one ``fuse_many`` call, in journal
+    order, and answers each with its own ack: the map a replay builds."""
+    service = MapService(small_settings(tmp_path / "data"))
+    calls: list[int] = []
+    fuse_many = service.belief.fuse_many
+
+    def counted(scans):
+        calls.append(len(scans))
+        return fuse_many(scans)
+
+    service.belief.fuse_many = counted
+    try:
+        with service._lock:  # the fusion thread waits here with what it took
+            first = service.submit([scan(0, 1)])
+            deadline = threading.Event()
+            while service.journal.last_seq() < 1 and not deadline.wait(0.01):
+                pass
+            deadline.wait(0.2)  # the fusion thread has taken the first group
+            futures = [service.submit([scan(u, 2)]) for u in range(10)]
+            while service.journal.last_seq() < 11 and not deadline.wait(0.01):
+                pass
+        acks = [first.result()[0]] + [f.result()[0] for f in futures]
+        assert [a.seq for a in acks] == list(range(1, 12))
+        # the first group alone (taken before the lock let go), then the ten waiting as one
+        assert sum(calls) == 11 and len(calls) <= 2 and calls[-1] >= 10
+        assert all(a.map_version == 11 for a in acks[1:])
+        live = service.belief.raw_log_odds().copy()
+    finally:
+        service.close()
+    replayed = MapService(small_settings(tmp_path / "data"))
+    try:
+        assert np.array_equal(replayed.belief.raw_log_odds(), live)
+    finally:
+        replayed.close()

@@ -161,8 +161,8 @@ def test_the_file_stops_growing_once_retention_is_reached(tmp_path: Path) -> Non
 @pytest.mark.parametrize("policy", ["decay", "dual"])
 def test_restart_equals_a_replay_from_the_oldest_kept_snapshot(tmp_path: Path, policy) -> None:
     data = tmp_path / "data"
-    # 4 snapshots of 240 kB (+ 60 kB of free-space history under dual) + ~100 scans
-    service = retaining(data, policy, retain_bytes=1_300_000)
+    # snapshots of 10-17 kB (zstd) + ~100 scans of ~870 B
+    service = retaining(data, policy, retain_bytes=150_000)
     try:
         for i in range(400):
             service.ingest([Scan.from_dict(body(i, f"u{i % 3}"))])
@@ -336,7 +336,7 @@ def test_live_fusion_fuses_the_float32_values_the_journal_stores(tmp_path: Path)
 # --------------------------------------------------------------- drop and salvage
 def cut_data_dir(tmp_path: Path, scans: int = 300) -> Path:
     data = tmp_path / "data"
-    service = retaining(data, retain_bytes=1_300_000)
+    service = retaining(data, retain_bytes=150_000)
     try:
         for i in range(scans):
             service.ingest([Scan.from_dict(body(i, f"u{i % 3}"))])
