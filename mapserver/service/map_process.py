@@ -44,7 +44,7 @@ from typing import Any
 from mapserver.core.geometry import GridGeometry
 from mapserver.service.ingest_stages import Histogram
 from mapserver.service.map_clock import ClockView
-from mapserver.service.map_service import GridRead, MapService
+from mapserver.service.map_service import GridRead, MapService, take_waiting
 from mapserver.service.scan_gate import IngestError
 from mapserver.service.settings import Settings
 
@@ -69,7 +69,7 @@ CALLS = frozenset(
         "declare_clock",
     }
 )
-"""What the front may ask of the child's ``MapService`` (see ``_ChildCalls``)."""
+"""What the front may ask of the child's ``MapService`` (see ``_run_call``)."""
 
 SWITCH_INTERVAL_S = 0.0005
 """[s] the child's GIL switch interval: its ingest, fusion and snapshot threads hand the
@@ -332,30 +332,24 @@ def _running_loop() -> asyncio.AbstractEventLoop | None:
 
 
 # ---------------------------------------------------------------------- the child
-class _ChildCalls:
-    """What each name of ``CALLS`` does on the child's service."""
-
-    def __init__(self, service: MapService) -> None:
-        self.service = service
-
-    def run(self, name: str, args: tuple) -> Any:
-        service = self.service
-        if name == "counters":
-            return {
-                "version": service.version,
-                "fusion_seconds": service.fusion_seconds,
-                "snapshot_failures": service.snapshot_failures,
-                "quarantined": service.journal.quarantined,
-            }
-        if name == "stages":
-            return service.stages.stages()
-        if name == "group_sizes":
-            return service.stages.group_sizes()
-        if name == "clock_view":
-            return service.clock.view()
-        if name == "declare_clock":
-            return service.clock.declare(*args)
-        return getattr(service, name)(*args)
+def _run_call(service: MapService, name: str, args: tuple) -> Any:
+    """What the name of a read in ``CALLS`` does on the child's service."""
+    if name == "counters":
+        return {
+            "version": service.version,
+            "fusion_seconds": service.fusion_seconds,
+            "snapshot_failures": service.snapshot_failures,
+            "quarantined": service.journal.quarantined,
+        }
+    if name == "stages":
+        return service.stages.stages()
+    if name == "group_sizes":
+        return service.stages.group_sizes()
+    if name == "clock_view":
+        return service.clock.view()
+    if name == "declare_clock":
+        return service.clock.declare(*args)
+    return getattr(service, name)(*args)
 
 
 class _Answers:
@@ -376,9 +370,10 @@ class _Answers:
         exc = future.exception()
         self.put(call_id, exc is None, future.result() if exc is None else _portable(exc))
 
-    def run(self, call_id: int, calls: _ChildCalls, name: str, args: tuple) -> None:
+    def run(self, call_id: int, service: MapService, name: str, args: tuple) -> None:
+        """Answer ``call_id`` with the read ``name(*args)`` (``_run_call``)."""
         try:
-            value = calls.run(name, args)
+            value = _run_call(service, name, args)
         except Exception as exc:
             self.put(call_id, False, _portable(exc))
         else:
@@ -391,18 +386,7 @@ class _Answers:
 
     def _send(self) -> None:
         while True:
-            first = self._queue.get()
-            batch = [first] if first is not None else []
-            stop = first is None
-            while not stop:
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                if item is None:
-                    stop = True
-                else:
-                    batch.append(item)
+            batch, stop = take_waiting(self._queue, lambda _: 1)
             if batch:
                 try:
                     self._conn.send(batch)
@@ -439,7 +423,7 @@ def _dispatch(
                 lambda future, call_id=call_id: answers.settle(call_id, future)
             )
         else:
-            reads.submit(answers.run, call_id, _ChildCalls(service), name, args)
+            reads.submit(answers.run, call_id, service, name, args)
     return True
 
 

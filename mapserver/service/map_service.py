@@ -127,7 +127,9 @@ def _units(scans: list[Scan]) -> str:
     return quote(units[0] if len(units) == 1 else units)
 
 
-def _take_waiting(waiting: queue.Queue, scans_of: Callable[[Any], int]) -> tuple[list, bool]:
+def take_waiting(
+    waiting: queue.Queue | queue.SimpleQueue, scans_of: Callable[[Any], int]
+) -> tuple[list, bool]:
     """The items of ``waiting`` (at least one, blocking for it; more while they hold
     fewer than MAX_GROUP scans, counted by ``scans_of``) and whether a None (stop) came
     after them."""
@@ -343,7 +345,7 @@ class MapService:
     def _next_group(self) -> tuple[list[_Submission], bool]:
         """The submissions waiting (at least one, at most MAX_GROUP scans) and whether
         close() asked to stop after them."""
-        return _take_waiting(self._queue, lambda sub: len(sub.scans))
+        return take_waiting(self._queue, lambda sub: len(sub.scans))
 
     def _admit_and_journal(self, group: list[_Submission], taken: float) -> list[_Journaled]:
         """State checks per submission (``scan_gate``) and one journal transaction; the
@@ -433,7 +435,7 @@ class MapService:
     def _next_fusion(self) -> tuple[list[_Journaled], bool]:
         """The journaled groups waiting (at least one, at most about MAX_GROUP scans) and
         whether the ingest thread has stopped after them."""
-        return _take_waiting(self._fuse_queue, lambda journaled: len(journaled.new))
+        return take_waiting(self._fuse_queue, lambda journaled: len(journaled.new))
 
     def _fuse(self, batch: list[_Journaled], taken: float) -> None:
         """Fuse the journaled groups' new scans in one kernel call (the costmap follows

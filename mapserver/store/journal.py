@@ -871,7 +871,7 @@ SNAPSHOT_ZSTD_LEVEL = 1
 """zstd level of a snapshot's arrays: level 1 compresses the 26 MB of a 2 M-cell grid in
 milliseconds with the GIL released (zlib took about a second a 4 M-cell grid), and the
 journal's write of the smaller blob holds up the scans' appends for less (one journal
-lock): docs/scaling.md, "Snapshots"."""
+lock): docs/durability.md."""
 
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # a zstd frame's first bytes (RFC 8878); an npz starts "PK"
 
