@@ -433,6 +433,27 @@ class BeliefGrid:
         """Take ``other``'s state (same geometry and policy)."""
         self.load_state(stamp=other.stamp, **other.state_arrays())
 
+    def copy_cells_from(self, other: BeliefGrid, boxes: Sequence[CellBox]) -> None:
+        """Take ``other``'s state in ``boxes`` only, and its stamp and scans fused (same
+        geometry and policy): a grid that equalled ``other`` before it fused scans whose
+        ``FusionResult.box`` lie in ``boxes`` equals it after, cell for cell, at the cost
+        of copying those boxes (13 B a cell under ``dual``, 12 else)."""
+        if other.geometry != self.geometry or other.policy is not self.policy:
+            raise ValueError("copy_cells_from needs a grid of the same geometry and policy")
+        pairs = [(self.raw_log_odds(), other.raw_log_odds()),
+                 (self.last_observed(), other.last_observed())]  # fmt: skip
+        if self.fades_selectively:
+            shape = self.geometry.shape
+            pairs.append((self._history.reshape(shape), other._history.reshape(shape)))
+        for box in boxes:
+            box = box.clip(self.geometry.shape)
+            if box.empty:
+                continue
+            for mine, theirs in pairs:
+                mine[box.slices] = theirs[box.slices]
+        self.stamp = other.stamp
+        self.scans_fused = other.scans_fused
+
     def _has_stamp(self, stamp: float | None) -> bool:
         return stamp is not None or math.isfinite(self.stamp)
 

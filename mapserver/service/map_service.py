@@ -13,15 +13,18 @@ journal write of one group (an fsync, without the GIL) overlaps the fusion of th
 before (numba, without the GIL), and an ack's map version always includes its scan. A
 rejected submission changes nothing. Each accepted submission's time in each of these
 stages is kept for ``GET /metrics`` (``ingest_stages``).
-The costmap follows the belief lazily: the boxes the scans touched are kept, and the
-costmap is brought up to the belief by the first read that needs it (so every read sees
-every acknowledged scan), or by the fusion thread once ``reads.costmap_refresh_s`` [s]
-passed since the last refresh: a fleet's scans of the same places between two reads
-are composed and inflated once. The map's ``version`` is the journal ``seq`` of the last
-scan fused, so it increases with every accepted scan and is the same after a restart.
+The costmap follows the belief lazily and beside fusion (``costmap_follower``): the
+boxes the scans touched are kept, and the costmap is brought up to the belief, over a
+mirror of it, by the first read that needs it (so every read sees every acknowledged
+scan), or by a thread of its own once ``reads.costmap_refresh_s`` [s] passed since the
+last refresh (0: by the fusion thread before the acks): a fleet's scans of the same
+places between two reads are composed and inflated once. The map's ``version`` is the
+journal ``seq`` of the last scan fused, so it increases with every accepted scan and is
+the same after a restart.
 
-Reads take the lock only to copy or gather what they need (a costmap of one version with
-its version and stamp, the values at queried points) and compute outside it, so a slow
+Reads take the follower's lock, never the map lock for long (only to copy what fusion
+changed into the mirror): they gather what they need (a costmap of one version with its
+version and stamp, the values at queried points) and compute outside it, so a slow
 reader never stalls ingest.
 
 Durability. Start-up loads the newest snapshot and replays the journal after it: the
@@ -52,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.core.belief import BeliefGrid, CellBox, FusionResult
+from mapserver.core.belief import BeliefGrid, FusionResult
 from mapserver.core.errors import FleetmapError
 from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.patch import Patch
@@ -66,9 +69,10 @@ from mapserver.core.queries import (
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import fill_legacy_sensor_model
 from mapserver.core.text import clip, quote
-from mapserver.costmap.layered import LayeredCostmap, merge_regions
+from mapserver.costmap.layered import LayeredCostmap
 from mapserver.costmap.layers import InflationLayer, ObstacleLayer, StaticLayer
 from mapserver.costmap.lower_bound import static_lower_bound
+from mapserver.service.costmap_follower import CostmapFollower
 from mapserver.service.ingest_stages import IngestStages
 from mapserver.service.map_clock import MapClock
 from mapserver.service.scan_gate import Ack, GroupCheck, IngestError, ScanGate, UnitLatest
@@ -85,7 +89,6 @@ logger = logging.getLogger(__name__)
 MAP_SETTINGS_FILE = "map-settings.json"
 LOCK_FILE = "server.lock"
 MAX_GROUP = 512  # scans applied together at most
-MAX_DIRTY_BOXES = 256  # fused boxes kept apart for the costmap; beyond, merged
 
 
 class DataDirError(FleetmapError, RuntimeError):
@@ -188,12 +191,14 @@ class MapService:
             if static is None
             else static_lower_bound(static, settings.build_inflation(), self.geometry)
         )  # costs the live costmap never goes below: for planners' cached heuristics
-        layers += [ObstacleLayer(self.belief), inflation]
-        self.costmap = LayeredCostmap(
-            self.geometry,
-            layers,
+        self._lock = threading.Lock()
+        self.follower = CostmapFollower(
+            self.belief,
+            settings.belief_grid(self.geometry),
+            lambda mirror: [*layers, ObstacleLayer(mirror), inflation],
+            self._lock,
+            settings.reads.costmap_refresh_s,
             history=settings.journal.history,
-            stamp=self.belief.stamp,
             version=self.version,
         )
         self.gate = ScanGate(
@@ -203,8 +208,7 @@ class MapService:
             self.journal.find_scan,
             settings.limits.max_beams,
         )
-        self._lock = threading.Lock()
-        self._refresh_s = settings.reads.costmap_refresh_s
+        self._eager_costmap = settings.reads.costmap_refresh_s == 0
         self._queue: queue.Queue[_Submission | None] = queue.Queue()
         self._since_snapshot = 0
         self._last_snapshot_time = time.monotonic()
@@ -217,8 +221,6 @@ class MapService:
         self._snapshotter: threading.Thread | None = None
         self.fusion_seconds = 0.0  # [s] total, for metrics
         self.stages = IngestStages()  # where submissions' time goes, for metrics
-        self._dirty: list[CellBox] = []  # boxes fused since the costmap's last refresh
-        self._costmap_refreshed = time.monotonic()
         self._closed = False
         self._fuse_queue: queue.Queue[_Journaled | None] = queue.Queue()
         self._worker = threading.Thread(target=self._ingest_loop, name="map-ingest", daemon=True)
@@ -302,6 +304,7 @@ class MapService:
         self._queue.put(None)
         self._worker.join()
         self._fuser.join()
+        self.follower.close()
         if self._snapshotter is not None:
             self._snapshotter.join()
         self.journal.close()
@@ -458,13 +461,12 @@ class MapService:
                         fused, failed[k] = self._fuse_apart(journaled)
                         results += fused
                 self.version = max(j.acks[-1].map_version for j in batch if j.acks)
-                self._dirty += [r.box for r in results]
-                if time.monotonic() - self._costmap_refreshed >= self._refresh_s:
-                    self._costmap_current()
-                elif len(self._dirty) > MAX_DIRTY_BOXES:
-                    self._dirty = merge_regions(self._dirty)
+                self.follower.fused([r.box for r in results], self.version)
                 self.fusion_seconds += time.perf_counter() - t0
                 self._since_snapshot += len(new)
+            if self._eager_costmap:  # refreshed before the acks (reads.costmap_refresh_s 0)
+                with self.follower.costmap_current():
+                    pass
         answered = time.monotonic()
         for journaled in batch:
             self.stages.record_group(
@@ -520,25 +522,21 @@ class MapService:
                 failed.update(dict.fromkeys(own, error))
         return results, failed
 
-    def _costmap_current(self) -> None:
-        """Bring the costmap up to the belief: the boxes fused since its last refresh,
-        composed and inflated at the belief's stamp (the caller holds the lock)."""
-        if self.costmap.version != self.version or self._dirty:
-            self.costmap.update(self.belief.stamp, self._dirty, version=self.version)
-            self._dirty = []
-        self._costmap_refreshed = time.monotonic()
-
     def _snapshot_if_due(self) -> None:
-        """Copy the belief and save it on a background thread, at most one at a time."""
+        """Start a snapshot on a background thread when one is due, at most one at a
+        time: it copies the belief's mirror (``follower``), not the live belief, so
+        fusion goes on meanwhile."""
         due = self._snapshots.due(
             self._since_snapshot,
             time.monotonic() - self._last_snapshot_time,
             self.snapshot_save_seconds,
         )
         if due and not (self._snapshotter and self._snapshotter.is_alive()):
-            taken = self._take_snapshot()
+            self._snapshot_started()
             saver = threading.Thread(
-                target=self._save_snapshot, args=taken, name="map-snapshot", daemon=True
+                target=lambda: self._save_snapshot(*self._take_snapshot()),
+                name="map-snapshot",
+                daemon=True,
             )
             saver.start()  # before it is published: snapshot() may join it at once
             self._snapshotter = saver
@@ -547,19 +545,23 @@ class MapService:
         """Save a snapshot of the belief now (waiting for it); returns its seq."""
         if self._snapshotter is not None:
             self._snapshotter.join()
+        self._snapshot_started()
         taken = self._take_snapshot()
         self._save_snapshot(*taken)
         return taken[0]
 
-    def _take_snapshot(self) -> tuple[int, float, dict[str, np.ndarray]]:
+    def _snapshot_started(self) -> None:
+        """Restart the snapshot schedule's counts (``SnapshotSchedule``)."""
         with self._lock:
-            arrays = {
-                **self.belief.state_arrays(),
-                "scans_fused": np.array(self.belief.scans_fused),
-            }
             self._since_snapshot = 0
-            self._last_snapshot_time = time.monotonic()
-            return self.version, self.belief.stamp, arrays
+        self._last_snapshot_time = time.monotonic()
+
+    def _take_snapshot(self) -> tuple[int, float, dict[str, np.ndarray]]:
+        """The belief's state at the latest scan fused: (its version, stamp [s], arrays
+        with ``scans_fused``), copied from the mirror."""
+        with self.follower.mirror_current() as now:
+            arrays = {**now.belief.state_arrays(), "scans_fused": np.array(now.belief.scans_fused)}
+            return now.version, now.belief.stamp, arrays
 
     def _save_snapshot(self, seq: int, stamp: float, arrays: dict[str, np.ndarray]) -> None:
         """Save a snapshot, then apply retention (off the ingest path: this runs on the
@@ -610,21 +612,25 @@ class MapService:
             },
         }
 
+    @property
+    def costmap(self) -> LayeredCostmap:
+        """The layered costmap (``follower``; it may lag the belief until a read)."""
+        return self.follower.costmap
+
     def costmap_read(self, at: float | None = None) -> GridRead:
         """The costmap at ``at`` [s] (default: the map's stamp), copied at one version."""
-        with self._lock:
-            self._costmap_current()
-            if at is None or at == self.costmap.stamp:
-                return GridRead(self.costmap.costs.copy(), self.version, self.costmap.stamp)
-            layers = self._frozen_layers()
-            version = self.version
+        with self.follower.costmap_current() as now:
+            if at is None or at == now.costmap.stamp:
+                return GridRead(now.costmap.costs.copy(), now.version, now.costmap.stamp)
+            layers = self._frozen_layers(self._belief_copy(now.belief))
+            version = now.version
         return GridRead(self._build(layers, at), version, at)
 
     def occupancy_read(self, at: float | None = None) -> GridRead:
         """OccupancyGrid int8 values (-1 unknown, 0..100) at ``at`` [s]."""
-        with self._lock:
-            belief = self._belief_copy()
-            version = self.version
+        with self.follower.mirror_current() as now:
+            belief = self._belief_copy(now.belief)
+            version = now.version
         when = belief.stamp if at is None else at
         return GridRead(occupancy_percent(belief.probability_at(when)), version, when)
 
@@ -632,17 +638,16 @@ class MapService:
         """Evidence age [s] per cell (float32) at ``at`` [s] (default: the map's stamp):
         ``at - last_observed``, NaN where never observed, negative for evidence newer
         than ``at``."""
-        with self._lock, np.errstate(over="ignore"):  # beyond float32: +-inf, not an error
-            ages = self.belief.age_at(at).astype(np.float32)
-            version, stamp = self.version, self.belief.stamp
+        with self.follower.mirror_current() as now, np.errstate(over="ignore"):
+            ages = now.belief.age_at(at).astype(np.float32)  # beyond float32: +-inf
+            version, stamp = now.version, now.belief.stamp
         return GridRead(ages, version, stamp if at is None else at)
 
     def updates_since(self, version: int) -> tuple[int, float, list[Patch] | None]:
         """(current version, its stamp [s], patches since ``version`` or None when a full
         read is due)."""
-        with self._lock:
-            self._costmap_current()
-            return self.version, self.costmap.stamp, self.costmap.patches_since(version)
+        with self.follower.costmap_current() as now:
+            return now.version, now.costmap.stamp, now.costmap.patches_since(version)
 
     def cell_columns(self, points: Any, at: float | None = None) -> dict[str, list]:
         """docs/http-api.md 2.4 reports of ``points`` [(x, y) m, a list or an (N, 2) array] at
@@ -653,14 +658,13 @@ class MapService:
         """The points' values and the stamp [s] they are read at. The lock is held only to
         gather them (or, at another stamp, to copy the belief): costmaps at other stamps
         are built outside it."""
-        with self._lock:
-            self._costmap_current()
-            when = self.belief.stamp if at is None else at
-            current = at is None or at == self.costmap.stamp
+        with self.follower.costmap_current() as now:
+            when = now.belief.stamp if at is None else at
+            current = at is None or at == now.costmap.stamp
             if current:
-                samples = sample_cells(self.belief, self.costmap.costs, points, when)
+                samples = sample_cells(now.belief, now.costmap.costs, points, when)
             else:
-                belief = self._belief_copy()
+                belief = self._belief_copy(now.belief)
                 layers = self._frozen_layers(belief)
         if not current:
             samples = sample_cells(belief, self._build(layers, at), points, when)
@@ -668,24 +672,21 @@ class MapService:
 
     def segments(self, segments: list[list[float]]) -> list[SegmentReport]:
         """docs/http-api.md 2.5 reports on the current costmap, copied under the lock."""
-        with self._lock:
-            self._costmap_current()
-            costs = self.costmap.costs.copy()
+        with self.follower.costmap_current() as now:
+            costs = now.costmap.costs.copy()
         return query_segments(self.geometry, costs, segments)
 
     def journal_bytes(self) -> int:
         return self.journal.size_bytes()
 
-    def _belief_copy(self) -> BeliefGrid:
-        """A copy of the belief (caller holds the lock)."""
+    def _belief_copy(self, source: BeliefGrid) -> BeliefGrid:
+        """A copy of ``source`` (the follower's mirror, its lock held)."""
         copy = self.settings.belief_grid(self.geometry)
-        copy.copy_state_from(self.belief)
+        copy.copy_state_from(source)
         return copy
 
-    def _frozen_layers(self, belief: BeliefGrid | None = None) -> list:
-        """Fresh layers over ``belief`` (default: a copy of the map's), for reads at
-        another stamp (lock held)."""
-        belief = belief or self._belief_copy()
+    def _frozen_layers(self, belief: BeliefGrid) -> list:
+        """Fresh layers over ``belief`` (a copy), for reads at another stamp."""
         return [
             ObstacleLayer(belief) if isinstance(layer, ObstacleLayer) else layer.fresh()
             for layer in self.costmap.layers
