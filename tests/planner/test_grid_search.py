@@ -148,3 +148,24 @@ def test_plans_are_deterministic_and_buffers_are_reset():
     fresh = GridPlanner(GridGeometry(60, 60, RES)).plan(costs, centre(2, 2), centre(57, 57))
     for other in (again, fresh):
         assert (other.path, other.cost, other.expanded) == (first.path, first.cost, first.expanded)
+
+
+def test_a_search_that_runs_out_of_queue_entries_grows_them_and_finds_the_same_plan():
+    """The search returns when its entry pool is full; the planner doubles the pool and
+    searches again from scratch: the same path, cost and expansions as with room."""
+    rng = np.random.default_rng(3)
+    costs = rng.choice(np.array([FREE, FREE, 40, 252, LETHAL], np.uint8), (60, 60))
+    costs[2, 2] = costs[57, 57] = FREE
+    roomy = GridPlanner(GridGeometry(60, 60, RES))
+    tight = GridPlanner(GridGeometry(60, 60, RES))
+    tight._grow_entries(16)
+    for algorithm in ("astar", "dijkstra"):
+        expected = roomy.plan(costs, centre(2, 2), centre(57, 57), algorithm)
+        result = tight.plan(costs, centre(2, 2), centre(57, 57), algorithm)
+        assert (result.path, result.cost, result.expanded) == (
+            expected.path,
+            expected.cost,
+            expected.expanded,
+        )
+    assert tight._entry_node.shape[0] > 16
+    assert np.isinf(tight._g).all() and not tight._info.any()  # reset after the retries
