@@ -200,7 +200,7 @@ class BeliefGrid:
         ranges = np.concatenate([s.ranges for s in scans])
         boxes = np.empty((len(scans), 4), dtype=np.int64)
         cells = np.empty(len(scans), dtype=np.int64)
-        kernel.fuse_batch(
+        kernel.POLICY_FUSE_BATCH[self._kernel_model.policy](
             self._kernel_buffers, self._kernel_grid, self._kernel_model,
             ranges, offsets, params, boxes, cells,
         )  # fmt: skip
