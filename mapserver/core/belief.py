@@ -18,6 +18,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from itertools import accumulate
 
 import numpy as np
 
@@ -195,9 +196,11 @@ class BeliefGrid:
                 glance_margin,
                 release_margin,
             )
-        offsets = np.zeros(len(scans) + 1, dtype=np.int64)
-        np.cumsum([s.beam_count for s in scans], out=offsets[1:])
-        ranges = np.concatenate([s.ranges for s in scans])
+        offsets = np.array([0, *accumulate(s.beam_count for s in scans)], dtype=np.int64)
+        if len(scans) == 1:  # no copy when the scan's ranges are float64 already
+            ranges = np.ascontiguousarray(scans[0].ranges, dtype=np.float64)
+        else:
+            ranges = np.concatenate([s.ranges for s in scans])
         boxes = np.empty((len(scans), 4), dtype=np.int64)
         cells = np.empty(len(scans), dtype=np.int64)
         kernel.POLICY_FUSE_BATCH[self._kernel_model.policy](
@@ -206,8 +209,8 @@ class BeliefGrid:
         )  # fmt: skip
         self.stamp = max(self.stamp, max(s.stamp for s in scans))
         self.scans_fused += len(scans)
-        return [
-            FusionResult(cells=int(c), box=CellBox(*(int(v) for v in box)))
+        return [  # tolist(): Python ints
+            FusionResult(cells=c, box=CellBox(*box))
             for c, box in zip(cells.tolist(), boxes.tolist(), strict=True)
         ]
 

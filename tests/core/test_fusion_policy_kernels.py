@@ -1,0 +1,55 @@
+"""Each policy's compiled fusion kernel (``POLICY_FUSE_BATCH``, the policy a compile-time
+constant) updates the grid exactly as the one generic kernel that reads the policy at run
+time, byte for byte: log-odds, stamps, history, and the marks left all zero."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_fusion_properties import GEOMETRY, MODEL, scans
+
+from mapserver.core import fusion_kernel as kernel
+from mapserver.core.belief import BeliefGrid
+from mapserver.core.sensor_model import POLICY_CODES, Policy
+
+
+def kernel_arguments(grid: BeliefGrid, sequence) -> tuple:
+    """The arguments ``fuse_many`` hands the policy's kernel for ``sequence``, captured."""
+    captured = {}
+    code = POLICY_CODES[grid.policy]
+    compiled = kernel.POLICY_FUSE_BATCH[code]
+
+    def capture(*args):
+        captured["args"] = args
+        return compiled(*args)
+
+    kernel.POLICY_FUSE_BATCH[code] = capture
+    try:
+        grid.fuse_many(sequence)
+    finally:
+        kernel.POLICY_FUSE_BATCH[code] = compiled
+    return captured["args"]
+
+
+def test_every_policy_has_its_own_compiled_kernel():
+    assert set(kernel.POLICY_FUSE_BATCH) == set(POLICY_CODES.values())
+    kernels = list(kernel.POLICY_FUSE_BATCH.values())
+    assert len({id(k) for k in kernels}) == len(kernels)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(scans(), min_size=1, max_size=5), st.sampled_from(list(Policy)))
+def test_a_policy_kernel_fuses_exactly_as_the_generic_kernel(sequence, policy):
+    specialised = BeliefGrid(GEOMETRY, MODEL, policy)
+    _, grid, model, ranges, offsets, params, boxes, cells = kernel_arguments(specialised, sequence)
+    generic = BeliefGrid(GEOMETRY, MODEL, policy)
+    generic_boxes, generic_cells = np.empty_like(boxes), np.empty_like(cells)
+    runtime_policy = int(np.int64(model.policy))  # not a constant: the generic compilation
+    kernel.fuse_batch(
+        generic._kernel_buffers, grid, model, runtime_policy,
+        ranges, offsets, params, generic_boxes, generic_cells,
+    )  # fmt: skip
+    assert np.array_equal(generic_cells, cells)
+    assert np.array_equal(generic_boxes, boxes)
+    for name, array in specialised.state_arrays().items():
+        assert array.tobytes() == generic.state_arrays()[name].tobytes(), name
+    assert not specialised._kernel_buffers.marks.any()
