@@ -202,11 +202,34 @@ def _trace(marks, width, c0, r0, c1, r1, include_last, mark, max_cells=-1):
     """The line of cells from (c0, r0) to (c1, r1) (``traversal.line_start``); raise weaker
     marks to ``mark``. max_cells >= 0 stops after that many cells of the same line (a
     prefix of it). No branch per cell: every cell is written, with the stronger mark."""
-    idx, cells, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
-    count = cells if include_last else cells - 1
-    if max_cells >= 0 and max_cells < count:
-        count = max_cells
-    for _ in range(count):
+    _trace_prefixed(
+        marks, width, c0, r0, c1, r1, _line_count(c0, r0, c1, r1, include_last, max_cells),
+        mark, 0, mark,
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _line_count(c0, r0, c1, r1, include_last, max_cells):
+    """How many cells of the line from (c0, r0) to (c1, r1) a trace marks: all of them, or
+    all but the last, capped at ``max_cells`` when that is >= 0."""
+    count = max(abs(c1 - c0), abs(r1 - r0)) + (1 if include_last else 0)
+    return count if max_cells < 0 else min(count, max_cells)
+
+
+@njit(cache=True, nogil=True)
+def _trace_prefixed(marks, width, c0, r0, c1, r1, count, mark, prefix, prefix_mark):
+    """The first ``count`` cells of the line from (c0, r0) to (c1, r1), and more if
+    ``prefix`` is longer: its first ``prefix`` cells raised to ``prefix_mark`` (at least
+    as strong as ``mark``), the rest of the ``count`` to ``mark``. One traversal, the same
+    cells and marks as a trace of ``count`` cells with ``mark`` and one of ``prefix``
+    cells with ``prefix_mark`` (marks only strengthen); ``mark_scan`` marks a return's
+    FREE cells and its CLEAR prefix so, in one pass along the beam."""
+    idx, _, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
+    for _ in range(prefix):
+        m = marks[idx]
+        marks[idx] = m if m > prefix_mark else prefix_mark
+        idx, err = line_next(idx, err, major, minor, a, b)
+    for _ in range(count - prefix):
         m = marks[idx]
         marks[idx] = m if m > mark else mark
         idx, err = line_next(idx, err, major, minor, a, b)
@@ -314,7 +337,7 @@ def mark_scan(marks, grid, scan, ranges, box):
                 continue
             if t_cut < t1:
                 max_cells = _cells_to(t_cut, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1)
-        _trace(marks, width, c0, r0, c1, r1, not endpoint_on_map, mark, max_cells)
+        clear_prefix = 0
         if is_return and release_margin > 0.0 and r > 0.0:  # the prefix release_margin short
             t_clear = 1.0 - max(cut, clear_short) / r
             if t_clear > t0:
@@ -324,7 +347,9 @@ def mark_scan(marks, grid, scan, ranges, box):
                     clear_cells = (
                         _cells_to(t_clear, sensor_x, sensor_y, dx, dy, grid, c0, r0, c1, r1) - 1
                     )
-                _trace(marks, width, c0, r0, c1, r1, False, MARK_CLEAR, clear_cells)
+                clear_prefix = _line_count(c0, r0, c1, r1, False, clear_cells)
+        count = _line_count(c0, r0, c1, r1, not endpoint_on_map, max_cells)
+        _trace_prefixed(marks, width, c0, r0, c1, r1, count, mark, clear_prefix, MARK_CLEAR)
         # Bresenham stays inside the box of its two end cells (a HIT end is in already).
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c0, r0)
         cmin, rmin, cmax, rmax = _grow(cmin, rmin, cmax, rmax, c1, r1)
