@@ -226,12 +226,14 @@ def _trace_prefixed(marks, width, c0, r0, c1, r1, count, mark, prefix, prefix_ma
     FREE cells and its CLEAR prefix so, in one pass along the beam."""
     idx, _, major, minor, a, b, err = line_start(c0, r0, c1, r1, width)
     for _ in range(prefix):
-        m = marks[idx]
-        marks[idx] = m if m > prefix_mark else prefix_mark
+        cell = np.uint64(idx)  # an unsigned index: no wrap-around of negative ones
+        m = marks[cell]
+        marks[cell] = m if m > prefix_mark else prefix_mark
         idx, err = line_next(idx, err, major, minor, a, b)
     for _ in range(count - prefix):
-        m = marks[idx]
-        marks[idx] = m if m > mark else mark
+        cell = np.uint64(idx)
+        m = marks[cell]
+        marks[cell] = m if m > mark else mark
         idx, err = line_next(idx, err, major, minor, a, b)
 
 
@@ -597,9 +599,10 @@ def apply_marks(buffers, box, grid, scan, model, policy):
                 if mark == MARK_NONE:
                     continue
                 idx = (w << 3) + j
+                cell = np.uint64(idx)  # an unsigned index: no wrap-around of negative ones
                 n += 1
-                if policy == POLICY_BINARY or (dual and history[idx] == HISTORY_VOID):
-                    log_odds[idx] = clamp_max if mark == MARK_HIT else clamp_min
+                if policy == POLICY_BINARY or (dual and history[cell] == HISTORY_VOID):
+                    log_odds[cell] = clamp_max if mark == MARK_HIT else clamp_min
                 else:
                     passed = mark == MARK_FREE or mark == MARK_CLEAR
                     ev = ev_hit if mark == MARK_HIT else (ev_free if passed else ev_nr)
@@ -608,10 +611,10 @@ def apply_marks(buffers, box, grid, scan, model, policy):
                         dxc = origin_x + (idx - r * width + 0.5) * resolution - sensor_x
                         dyc = origin_y + (r + 0.5) * resolution - sensor_y
                         ev *= res2 / (res2 + pose_var_xy + (dxc * dxc + dyc * dyc) * pose_var_yaw)
-                    value = log_odds[idx]
-                    t = last_observed[idx]
+                    value = log_odds[cell]
+                    t = last_observed[cell]
                     fading = policy == POLICY_DECAY or (
-                        dual and fades_by_history(history[idx], value, l0)
+                        dual and fades_by_history(history[cell], value, l0)
                     )
                     # Under dual, a new cell hit again with no pass since, a gap after it
                     # was last observed, stayed where it was: structure (``dual_history``).
@@ -624,7 +627,7 @@ def apply_marks(buffers, box, grid, scan, model, policy):
                     if fading and t < stamp:  # False for NaN (never observed): no fade
                         if t != last_t:  # neighbours mostly share an earlier scan's
                             f_occupied, f_free = fade_factors(
-                                t, stamp, stamp_bits[idx], fade_cache,
+                                t, stamp, stamp_bits[cell], fade_cache,
                                 half_life_occupied, half_life_free,
                             )  # fmt: skip
                             last_t = t
@@ -637,7 +640,7 @@ def apply_marks(buffers, box, grid, scan, model, policy):
                         dual
                         and mark == MARK_CLEAR
                         and value > l0
-                        and (fading or history[idx] == HISTORY_STRUCTURE_SEEN)
+                        and (fading or history[cell] == HISTORY_STRUCTURE_SEEN)
                     ):
                         value = l0
                     if policy == POLICY_STICKY:
@@ -645,12 +648,12 @@ def apply_marks(buffers, box, grid, scan, model, policy):
                     else:
                         value = _clamped(value + ev, clamp_min, clamp_max)
                     if dual:
-                        history[idx] = dual_history(
-                            history[idx], mark, value, l_void, confirm_hits, stayed
+                        history[cell] = dual_history(
+                            history[cell], mark, value, l_void, confirm_hits, stayed
                         )
-                    log_odds[idx] = value
-                if not (last_observed[idx] >= stamp):
-                    last_observed[idx] = stamp
+                    log_odds[cell] = value
+                if not (last_observed[cell] >= stamp):
+                    last_observed[cell] = stamp
     return n
 
 
