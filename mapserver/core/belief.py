@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from itertools import accumulate
@@ -472,11 +472,16 @@ def state_names(policy: Policy) -> tuple[str, ...]:
     return ("log_odds", "last_observed")
 
 
-def load_fusion_kernels() -> float:
-    """Compile or load (numba's cache) the fusion kernel, once per process; returns the
-    seconds it took (about 0 once loaded). The first ``fuse`` would do it otherwise, so a
-    caller that times fusion calls this first and reports the two apart."""
+def load_fusion_kernels(policies: Iterable[Policy] = tuple(Policy)) -> float:
+    """Compile or load (numba's cache) the fusion kernel of each of ``policies`` (each
+    policy has its own, ``fusion_kernel.POLICY_FUSE_BATCH``; default: every policy), once
+    per process; returns the seconds it took (about 0 once loaded). The first ``fuse``
+    under a policy would do it otherwise, so a caller that times fusion calls this first
+    with the policies it fuses under and reports the two apart."""
     start = time.perf_counter()
-    scratch = BeliefGrid(GridGeometry(1, 1, 1.0))
-    scratch.fuse(Scan("warm-up", 0.0, Pose2D(0.5, 0.5, 0.0), 0.0, 0.1, 0.0, 1.0, np.array([0.25])))
+    for policy in policies:
+        scratch = BeliefGrid(GridGeometry(1, 1, 1.0), policy=policy)
+        scratch.fuse(
+            Scan("warm-up", 0.0, Pose2D(0.5, 0.5, 0.0), 0.0, 0.1, 0.0, 1.0, np.array([0.25]))
+        )
     return time.perf_counter() - start

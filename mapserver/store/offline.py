@@ -59,7 +59,7 @@ def fuse_all(
     ``progress(done, total)`` is called after every scan, ``total`` being
     ``len(scans)`` for a sequence, else the ``total`` given (None: unknown). The fusion
     kernel is loaded first, timed apart from the fusion."""
-    kernel_load_s = load_fusion_kernels()
+    kernel_load_s = load_fusion_kernels([belief.policy])
     if total is None and isinstance(scans, Sized):
         total = len(scans)
     cells = 0

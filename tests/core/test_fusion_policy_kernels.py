@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from test_fusion_properties import GEOMETRY, MODEL, scans
 
 from mapserver.core import fusion_kernel as kernel
-from mapserver.core.belief import BeliefGrid
+from mapserver.core.belief import BeliefGrid, load_fusion_kernels
 from mapserver.core.sensor_model import POLICY_CODES, Policy
 
 
@@ -53,3 +53,10 @@ def test_a_policy_kernel_fuses_exactly_as_the_generic_kernel(sequence, policy):
     for name, array in specialised.state_arrays().items():
         assert array.tobytes() == generic.state_arrays()[name].tobytes(), name
     assert not specialised._kernel_buffers.marks.any()
+
+
+def test_loading_the_kernels_loads_the_kernel_of_each_policy_asked_for():
+    load_fusion_kernels([Policy.BINARY])
+    assert kernel.POLICY_FUSE_BATCH[POLICY_CODES[Policy.BINARY]].signatures
+    load_fusion_kernels()  # every policy
+    assert all(compiled.signatures for compiled in kernel.POLICY_FUSE_BATCH.values())

@@ -63,9 +63,9 @@ def test_map_build_writes_ros_map_files_and_prints_figures(scan_file, tmp_path, 
 def test_the_kernel_load_is_timed_apart_from_the_fusion(scan_file, tmp_path, capsys, monkeypatch):
     real = offline.load_fusion_kernels
 
-    def slow_load():  # a cold numba cache: seconds before the first scan fuses
+    def slow_load(policies):  # a cold numba cache: seconds before the first scan fuses
         time.sleep(0.3)
-        return real() + 0.3
+        return real(policies) + 0.3
 
     monkeypatch.setattr(offline, "load_fusion_kernels", slow_load)
     out = tmp_path / "map"
