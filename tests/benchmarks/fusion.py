@@ -53,7 +53,7 @@ from mapserver.core import fusion_kernel
 from mapserver.core.belief import BeliefGrid, CellState
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
-from mapserver.core.sensor_model import DecayParams, Policy, SensorModel
+from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
 from scenarios.evaluate.octomap_peer import octree  # fleetmap's sensor model in OctoMap
 
 RESOLUTION = 0.05  # [m] cell / voxel edge
@@ -113,17 +113,18 @@ def profile(geometry: GridGeometry, model: SensorModel, scans: list[Scan], repea
     grid = BeliefGrid(geometry, model, policy=Policy.DECAY)
     grid.fuse_many(scans[:1])  # the arguments as fuse_many builds them, captured below
     captured = {}
-    real = fusion_kernel.fuse_batch
+    code = POLICY_CODES[Policy.DECAY]
+    real = fusion_kernel.POLICY_FUSE_BATCH[code]  # decay's kernel
 
     def capture(*args):
         captured["args"] = args
         return real(*args)
 
-    fusion_kernel.fuse_batch = capture
+    fusion_kernel.POLICY_FUSE_BATCH[code] = capture
     try:
         grid.fuse_many(scans)
     finally:
-        fusion_kernel.fuse_batch = real
+        fusion_kernel.POLICY_FUSE_BATCH[code] = real
     buffers, kgrid, kmodel, ranges, offsets, params, boxes, cells = captured["args"]
     _mark_only(buffers, kgrid, ranges, offsets[:2], params, boxes)  # compile, untimed
     batch = mark = per_fuse = math.inf
