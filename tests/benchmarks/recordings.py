@@ -47,7 +47,8 @@ def octomap_rate(scans: list[Scan]) -> float | None:
         return None
     from mapserver.core.sensor_model import SensorModel
 
-    clouds = [point_cloud(scan) for scan in scans]
+    clearing = BeliefGrid(fit_grid(scans[:1], RESOLUTION)).no_return_clearing  # fleetmap's
+    clouds = [point_cloud(scan, clearing(scan.range_max)) for scan in scans]
     return insert(octree(SensorModel(), RESOLUTION), scans, clouds).scans_per_s
 
 
