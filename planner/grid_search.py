@@ -40,7 +40,10 @@ the search return, and it is run again with twice the room), and the eight moves
 written out rather than a helper called per move: either makes numba count references
 to the arrays atomically in the loop, which cost more than half of the search's time.
 Without landmarks the kernel gets ``None`` for their tables, so their loop is compiled
-out. Bidirectional search was weighed on the 2000 x 2000 benchmark map and not taken:
+out. Every array index in the loop is cast to ``np.uint64`` (the same bits: indices here
+are never negative), so numba leaves out its wrap-around of negative indices at each
+access (1.23x corner to corner on the benchmark map, the same path and nodes).
+Bidirectional search was weighed on the 2000 x 2000 benchmark map and not taken:
 counted from the exact distances from both ends, front-to-end bidirectional A* that meets
 in the middle (MM: Holte, Felner, Sharon, Sturtevant 2016) would expand 2.1 million nodes
 and the average-potential rule (Ikeda et al. 1994; Goldberg, Harrelson 2005) 1.9 to 2.1
@@ -293,7 +296,9 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
     ``heads`` (a power of two slots); an entry whose g is no longer its node's is stale.
     The entry arrays are never replaced here (see the module on numba)."""
     n_touched = 0
-    if weights[costs[start]] == np.inf or (goal >= 0 and weights[costs[goal]] == np.inf):
+    if weights[costs[np.uint64(start)]] == np.inf or (
+        goal >= 0 and weights[costs[np.uint64(goal)]] == np.inf
+    ):
         return 0, 0.0, 0, n_touched
     goal_r, goal_c = divmod(goal, wp)
     start_r, start_c = divmod(start, wp)
@@ -306,7 +311,7 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
     heads[:] = -1
     capacity = entry_node.shape[0]
     free = -1  # recycled entries
-    g[start] = 0.0
+    g[np.uint64(start)] = 0.0
     h0 = _heuristic(
         start_r, start_c, start, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
     )
@@ -316,48 +321,48 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
     entry_node[0] = start
     entry_g[0] = 0.0
     entry_next[0] = -1
-    heads[cur & mask] = 0
+    heads[np.uint64(cur & mask)] = 0
     top = 1  # entries ever used
     size = 1
     expanded = 0
     slot = cur & mask
     while size > 0:
-        while heads[slot] == -1:
+        while heads[np.uint64(slot)] == -1:
             cur += 1
             slot = (slot + 1) & mask
-        if goal >= 0 and cur * width >= g[goal]:
+        if goal >= 0 and cur * width >= g[np.uint64(goal)]:
             break  # every entry left has f >= the goal's cost
-        e = heads[slot]
-        heads[slot] = entry_next[e]
-        entry_next[e] = free
+        e = heads[np.uint64(slot)]
+        heads[np.uint64(slot)] = entry_next[np.uint64(e)]
+        entry_next[np.uint64(e)] = free
         free = e
         size -= 1
-        node = entry_node[e]
-        base = g[node]
-        if base != entry_g[e]:
+        node = entry_node[np.uint64(e)]
+        base = g[np.uint64(node)]
+        if base != entry_g[np.uint64(e)]:
             continue  # stale: its node's g fell since
         row, col = divmod(node, wp)
         if node != goal and bound < np.inf:
             h = _heuristic(row, col, node, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin)
             if base + h >= bound:
                 continue  # no path through it beats the goal's cost (ties: see the module)
-        state = info[node]
+        state = info[np.uint64(node)]
         if state & 3 == 0:
             expanded += 1
-        info[node] = (state & ~3) | 1
+        info[np.uint64(node)] = (state & ~3) | 1
         if node == goal:
             continue
         if top + 8 > capacity:
             return -1, 0.0, expanded, n_touched  # the caller grows the entries, runs again
-        w_east = weights[costs[node + 1]]
-        w_west = weights[costs[node - 1]]
-        w_south = weights[costs[node + wp]]
-        w_north = weights[costs[node - wp]]
+        w_east = weights[costs[np.uint64(node + 1)]]
+        w_west = weights[costs[np.uint64(node - 1)]]
+        w_south = weights[costs[np.uint64(node + wp)]]
+        w_north = weights[costs[np.uint64(node - wp)]]
         # E, W, S (then SE, SW), N (then NE, NW): a diagonal needs both cells beside it
         if w_east != np.inf:
             candidate = base + resolution * w_east
             nb = node + 1
-            old = g[nb]
+            old = g[np.uint64(nb)]
             while candidate < old:  # one pass: ``break`` leaves the move
                 h = _heuristic(
                     row, col + 1, nb, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
@@ -366,35 +371,35 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                     break  # cannot beat the goal's cost (ties: see the module)
                 state = 0
                 if old == np.inf:
-                    touched[n_touched] = nb
+                    touched[np.uint64(n_touched)] = nb
                     n_touched += 1
                 else:
-                    state = info[nb] & 3
+                    state = info[np.uint64(nb)] & 3
                     if state == 1:
                         if candidate > old - tolerance:
                             break  # the same cost summed in another order: no reopening
                         state = 2
-                g[nb] = candidate
-                info[nb] = state | 0
+                g[np.uint64(nb)] = candidate
+                info[np.uint64(nb)] = state | 0
                 if nb == goal:
                     bound = candidate - slack
                 b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                 if free != -1:
                     e = free
-                    free = entry_next[e]
+                    free = entry_next[np.uint64(e)]
                 else:
                     e = top
                     top += 1
-                entry_node[e] = nb
-                entry_g[e] = candidate
-                entry_next[e] = heads[b & mask]
-                heads[b & mask] = e
+                entry_node[np.uint64(e)] = nb
+                entry_g[np.uint64(e)] = candidate
+                entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                heads[np.uint64(b & mask)] = e
                 size += 1
                 break
         if w_west != np.inf:
             candidate = base + resolution * w_west
             nb = node - 1
-            old = g[nb]
+            old = g[np.uint64(nb)]
             while candidate < old:  # one pass: ``break`` leaves the move
                 h = _heuristic(
                     row, col - 1, nb, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
@@ -403,35 +408,35 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                     break  # cannot beat the goal's cost (ties: see the module)
                 state = 0
                 if old == np.inf:
-                    touched[n_touched] = nb
+                    touched[np.uint64(n_touched)] = nb
                     n_touched += 1
                 else:
-                    state = info[nb] & 3
+                    state = info[np.uint64(nb)] & 3
                     if state == 1:
                         if candidate > old - tolerance:
                             break  # the same cost summed in another order: no reopening
                         state = 2
-                g[nb] = candidate
-                info[nb] = state | 4
+                g[np.uint64(nb)] = candidate
+                info[np.uint64(nb)] = state | 4
                 if nb == goal:
                     bound = candidate - slack
                 b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                 if free != -1:
                     e = free
-                    free = entry_next[e]
+                    free = entry_next[np.uint64(e)]
                 else:
                     e = top
                     top += 1
-                entry_node[e] = nb
-                entry_g[e] = candidate
-                entry_next[e] = heads[b & mask]
-                heads[b & mask] = e
+                entry_node[np.uint64(e)] = nb
+                entry_g[np.uint64(e)] = candidate
+                entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                heads[np.uint64(b & mask)] = e
                 size += 1
                 break
         if w_south != np.inf:
             candidate = base + resolution * w_south
             nb = node + wp
-            old = g[nb]
+            old = g[np.uint64(nb)]
             while candidate < old:  # one pass: ``break`` leaves the move
                 h = _heuristic(
                     row + 1, col, nb, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
@@ -440,37 +445,37 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                     break  # cannot beat the goal's cost (ties: see the module)
                 state = 0
                 if old == np.inf:
-                    touched[n_touched] = nb
+                    touched[np.uint64(n_touched)] = nb
                     n_touched += 1
                 else:
-                    state = info[nb] & 3
+                    state = info[np.uint64(nb)] & 3
                     if state == 1:
                         if candidate > old - tolerance:
                             break  # the same cost summed in another order: no reopening
                         state = 2
-                g[nb] = candidate
-                info[nb] = state | 8
+                g[np.uint64(nb)] = candidate
+                info[np.uint64(nb)] = state | 8
                 if nb == goal:
                     bound = candidate - slack
                 b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                 if free != -1:
                     e = free
-                    free = entry_next[e]
+                    free = entry_next[np.uint64(e)]
                 else:
                     e = top
                     top += 1
-                entry_node[e] = nb
-                entry_g[e] = candidate
-                entry_next[e] = heads[b & mask]
-                heads[b & mask] = e
+                entry_node[np.uint64(e)] = nb
+                entry_g[np.uint64(e)] = candidate
+                entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                heads[np.uint64(b & mask)] = e
                 size += 1
                 break
             if w_east != np.inf:
-                w = weights[costs[node + wp + 1]]
+                w = weights[costs[np.uint64(node + wp + 1)]]
                 if w != np.inf:
                     candidate = base + diag * w
                     nb = node + wp + 1
-                    old = g[nb]
+                    old = g[np.uint64(nb)]
                     while candidate < old:  # one pass: ``break`` leaves the move
                         h = _heuristic(
                             row + 1,
@@ -488,37 +493,37 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                             break  # cannot beat the goal's cost (ties: see the module)
                         state = 0
                         if old == np.inf:
-                            touched[n_touched] = nb
+                            touched[np.uint64(n_touched)] = nb
                             n_touched += 1
                         else:
-                            state = info[nb] & 3
+                            state = info[np.uint64(nb)] & 3
                             if state == 1:
                                 if candidate > old - tolerance:
                                     break  # the same cost summed in another order: no reopening
                                 state = 2
-                        g[nb] = candidate
-                        info[nb] = state | 16
+                        g[np.uint64(nb)] = candidate
+                        info[np.uint64(nb)] = state | 16
                         if nb == goal:
                             bound = candidate - slack
                         b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                         if free != -1:
                             e = free
-                            free = entry_next[e]
+                            free = entry_next[np.uint64(e)]
                         else:
                             e = top
                             top += 1
-                        entry_node[e] = nb
-                        entry_g[e] = candidate
-                        entry_next[e] = heads[b & mask]
-                        heads[b & mask] = e
+                        entry_node[np.uint64(e)] = nb
+                        entry_g[np.uint64(e)] = candidate
+                        entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                        heads[np.uint64(b & mask)] = e
                         size += 1
                         break
             if w_west != np.inf:
-                w = weights[costs[node + wp - 1]]
+                w = weights[costs[np.uint64(node + wp - 1)]]
                 if w != np.inf:
                     candidate = base + diag * w
                     nb = node + wp - 1
-                    old = g[nb]
+                    old = g[np.uint64(nb)]
                     while candidate < old:  # one pass: ``break`` leaves the move
                         h = _heuristic(
                             row + 1,
@@ -536,35 +541,35 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                             break  # cannot beat the goal's cost (ties: see the module)
                         state = 0
                         if old == np.inf:
-                            touched[n_touched] = nb
+                            touched[np.uint64(n_touched)] = nb
                             n_touched += 1
                         else:
-                            state = info[nb] & 3
+                            state = info[np.uint64(nb)] & 3
                             if state == 1:
                                 if candidate > old - tolerance:
                                     break  # the same cost summed in another order: no reopening
                                 state = 2
-                        g[nb] = candidate
-                        info[nb] = state | 20
+                        g[np.uint64(nb)] = candidate
+                        info[np.uint64(nb)] = state | 20
                         if nb == goal:
                             bound = candidate - slack
                         b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                         if free != -1:
                             e = free
-                            free = entry_next[e]
+                            free = entry_next[np.uint64(e)]
                         else:
                             e = top
                             top += 1
-                        entry_node[e] = nb
-                        entry_g[e] = candidate
-                        entry_next[e] = heads[b & mask]
-                        heads[b & mask] = e
+                        entry_node[np.uint64(e)] = nb
+                        entry_g[np.uint64(e)] = candidate
+                        entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                        heads[np.uint64(b & mask)] = e
                         size += 1
                         break
         if w_north != np.inf:
             candidate = base + resolution * w_north
             nb = node - wp
-            old = g[nb]
+            old = g[np.uint64(nb)]
             while candidate < old:  # one pass: ``break`` leaves the move
                 h = _heuristic(
                     row - 1, col, nb, goal_r, goal_c, resolution, hscale, lm, lm_goal, margin
@@ -573,37 +578,37 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                     break  # cannot beat the goal's cost (ties: see the module)
                 state = 0
                 if old == np.inf:
-                    touched[n_touched] = nb
+                    touched[np.uint64(n_touched)] = nb
                     n_touched += 1
                 else:
-                    state = info[nb] & 3
+                    state = info[np.uint64(nb)] & 3
                     if state == 1:
                         if candidate > old - tolerance:
                             break  # the same cost summed in another order: no reopening
                         state = 2
-                g[nb] = candidate
-                info[nb] = state | 12
+                g[np.uint64(nb)] = candidate
+                info[np.uint64(nb)] = state | 12
                 if nb == goal:
                     bound = candidate - slack
                 b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                 if free != -1:
                     e = free
-                    free = entry_next[e]
+                    free = entry_next[np.uint64(e)]
                 else:
                     e = top
                     top += 1
-                entry_node[e] = nb
-                entry_g[e] = candidate
-                entry_next[e] = heads[b & mask]
-                heads[b & mask] = e
+                entry_node[np.uint64(e)] = nb
+                entry_g[np.uint64(e)] = candidate
+                entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                heads[np.uint64(b & mask)] = e
                 size += 1
                 break
             if w_east != np.inf:
-                w = weights[costs[node - wp + 1]]
+                w = weights[costs[np.uint64(node - wp + 1)]]
                 if w != np.inf:
                     candidate = base + diag * w
                     nb = node - wp + 1
-                    old = g[nb]
+                    old = g[np.uint64(nb)]
                     while candidate < old:  # one pass: ``break`` leaves the move
                         h = _heuristic(
                             row - 1,
@@ -621,37 +626,37 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                             break  # cannot beat the goal's cost (ties: see the module)
                         state = 0
                         if old == np.inf:
-                            touched[n_touched] = nb
+                            touched[np.uint64(n_touched)] = nb
                             n_touched += 1
                         else:
-                            state = info[nb] & 3
+                            state = info[np.uint64(nb)] & 3
                             if state == 1:
                                 if candidate > old - tolerance:
                                     break  # the same cost summed in another order: no reopening
                                 state = 2
-                        g[nb] = candidate
-                        info[nb] = state | 24
+                        g[np.uint64(nb)] = candidate
+                        info[np.uint64(nb)] = state | 24
                         if nb == goal:
                             bound = candidate - slack
                         b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                         if free != -1:
                             e = free
-                            free = entry_next[e]
+                            free = entry_next[np.uint64(e)]
                         else:
                             e = top
                             top += 1
-                        entry_node[e] = nb
-                        entry_g[e] = candidate
-                        entry_next[e] = heads[b & mask]
-                        heads[b & mask] = e
+                        entry_node[np.uint64(e)] = nb
+                        entry_g[np.uint64(e)] = candidate
+                        entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                        heads[np.uint64(b & mask)] = e
                         size += 1
                         break
             if w_west != np.inf:
-                w = weights[costs[node - wp - 1]]
+                w = weights[costs[np.uint64(node - wp - 1)]]
                 if w != np.inf:
                     candidate = base + diag * w
                     nb = node - wp - 1
-                    old = g[nb]
+                    old = g[np.uint64(nb)]
                     while candidate < old:  # one pass: ``break`` leaves the move
                         h = _heuristic(
                             row - 1,
@@ -669,34 +674,34 @@ def _search(costs, wp, start, goal, weights, resolution, hscale, width, g, info,
                             break  # cannot beat the goal's cost (ties: see the module)
                         state = 0
                         if old == np.inf:
-                            touched[n_touched] = nb
+                            touched[np.uint64(n_touched)] = nb
                             n_touched += 1
                         else:
-                            state = info[nb] & 3
+                            state = info[np.uint64(nb)] & 3
                             if state == 1:
                                 if candidate > old - tolerance:
                                     break  # the same cost summed in another order: no reopening
                                 state = 2
-                        g[nb] = candidate
-                        info[nb] = state | 28
+                        g[np.uint64(nb)] = candidate
+                        info[np.uint64(nb)] = state | 28
                         if nb == goal:
                             bound = candidate - slack
                         b = max(cur, np.int64((candidate + h) * inv))  # b < cur: rounding only
                         if free != -1:
                             e = free
-                            free = entry_next[e]
+                            free = entry_next[np.uint64(e)]
                         else:
                             e = top
                             top += 1
-                        entry_node[e] = nb
-                        entry_g[e] = candidate
-                        entry_next[e] = heads[b & mask]
-                        heads[b & mask] = e
+                        entry_node[np.uint64(e)] = nb
+                        entry_g[np.uint64(e)] = candidate
+                        entry_next[np.uint64(e)] = heads[np.uint64(b & mask)]
+                        heads[np.uint64(b & mask)] = e
                         size += 1
                         break
     if goal < 0:
         return 0, 0.0, expanded, n_touched
-    cost = g[goal]
+    cost = g[np.uint64(goal)]
     found = cost < np.inf
     return int(found), cost if found else 0.0, expanded, n_touched
 
