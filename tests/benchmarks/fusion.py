@@ -57,6 +57,7 @@ from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
 from mapserver.core.sensor_model import POLICY_CODES, DecayParams, Policy, SensorModel
 from scenarios.evaluate.octomap_peer import octree  # fleetmap's sensor model in OctoMap
+from tests.kernel_helpers import kernel_arguments
 
 RESOLUTION = 0.05  # [m] cell / voxel edge
 WIDTH_M, HEIGHT_M = 100.0, 50.0  # [m] warehouse floor = grid extent
@@ -113,21 +114,9 @@ def profile(geometry: GridGeometry, model: SensorModel, scans: list[Scan], repea
     (``fuse_batch``), marking alone, applying (their difference) and the Python of one
     ``fuse`` call (the whole loop of ``fuse`` less the batch)."""
     grid = BeliefGrid(geometry, model, policy=Policy.DECAY)
-    grid.fuse_many(scans[:1])  # the arguments as fuse_many builds them, captured below
-    captured = {}
-    code = POLICY_CODES[Policy.DECAY]
-    real = fusion_kernel.POLICY_FUSE_BATCH[code]  # decay's kernel
-
-    def capture(*args):
-        captured["args"] = args
-        return real(*args)
-
-    fusion_kernel.POLICY_FUSE_BATCH[code] = capture
-    try:
-        grid.fuse_many(scans)
-    finally:
-        fusion_kernel.POLICY_FUSE_BATCH[code] = real
-    buffers, kgrid, kmodel, ranges, offsets, params, boxes, cells = captured["args"]
+    grid.fuse_many(scans[:1])
+    real = fusion_kernel.POLICY_FUSE_BATCH[POLICY_CODES[Policy.DECAY]]  # decay's kernel
+    buffers, kgrid, kmodel, ranges, offsets, params, boxes, cells = kernel_arguments(grid, scans)
     _mark_only(buffers, kgrid, ranges, offsets[:2], params, boxes)  # compile, untimed
     batch = mark = per_fuse = math.inf
     for _ in range(repeat):

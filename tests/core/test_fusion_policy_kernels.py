@@ -10,24 +10,7 @@ from test_fusion_properties import GEOMETRY, MODEL, scans
 from mapserver.core import fusion_kernel as kernel
 from mapserver.core.belief import BeliefGrid, load_fusion_kernels
 from mapserver.core.sensor_model import POLICY_CODES, Policy
-
-
-def kernel_arguments(grid: BeliefGrid, sequence) -> tuple:
-    """The arguments ``fuse_many`` hands the policy's kernel for ``sequence``, captured."""
-    captured = {}
-    code = POLICY_CODES[grid.policy]
-    compiled = kernel.POLICY_FUSE_BATCH[code]
-
-    def capture(*args):
-        captured["args"] = args
-        return compiled(*args)
-
-    kernel.POLICY_FUSE_BATCH[code] = capture
-    try:
-        grid.fuse_many(sequence)
-    finally:
-        kernel.POLICY_FUSE_BATCH[code] = compiled
-    return captured["args"]
+from tests.kernel_helpers import kernel_arguments
 
 
 def test_every_policy_has_its_own_compiled_kernel():
