@@ -39,9 +39,12 @@ def auth(token):
 
 
 def state(client, headers=None):
-    """(map version, journal rows) — what a rejected request must leave as it was."""
+    """(map version, journal rows, costmap) — what a rejected request must leave as it was.
+    The costmap is read as a client reads it (``costmap_read``: caught up to every scan
+    fused), not the follower's costmap as it stands: its own thread may refresh that
+    between two calls (``costmap_follower``), which is no change of the map."""
     service = client.app.state.service
-    return service.version, service.journal.last_seq(), service.costmap.costs.tobytes()
+    return service.version, service.journal.last_seq(), service.costmap_read().data.tobytes()
 
 
 def test_a_scan_is_acknowledged_and_fused(open_client):
