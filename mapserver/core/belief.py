@@ -479,9 +479,7 @@ def load_fusion_kernels(policies: Iterable[Policy] = tuple(Policy)) -> float:
     under a policy would do it otherwise, so a caller that times fusion calls this first
     with the policies it fuses under and reports the two apart."""
     start = time.perf_counter()
+    warm_up = Scan("warm-up", 0.0, Pose2D(0.5, 0.5, 0.0), 0.0, 0.1, 0.0, 1.0, np.array([0.25]))
     for policy in policies:
-        scratch = BeliefGrid(GridGeometry(1, 1, 1.0), policy=policy)
-        scratch.fuse(
-            Scan("warm-up", 0.0, Pose2D(0.5, 0.5, 0.0), 0.0, 0.1, 0.0, 1.0, np.array([0.25]))
-        )
+        BeliefGrid(GridGeometry(1, 1, 1.0), policy=policy).fuse(warm_up)
     return time.perf_counter() - start

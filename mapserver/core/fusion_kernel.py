@@ -734,7 +734,7 @@ def fuse_batch(buffers, grid, model, policy, ranges, offsets, scans, boxes, cell
 
     buffers: ``KernelBuffers``; grid: ``KernelGrid``; model: ``KernelModel``; policy: its
     code (``model.policy``), a compile-time constant when called from
-    ``policy_fuse_batch``'s kernels, so each policy's update compiles without the others'
+    ``POLICY_FUSE_BATCH``'s kernels, so each policy's update compiles without the others'
     branches. ranges: all scans' ranges [m] concatenated; scan k's are
     ranges[offsets[k]:offsets[k+1]]. scans: ``SCAN_PARAMS`` records, one per scan.
     boxes (n, 4) and cells (n,) receive each scan's bounding box and number of cells

@@ -101,6 +101,11 @@ class CostmapFollower:
             self._refreshed = time.monotonic()
             yield self
 
+    def refresh(self) -> None:
+        """Bring mirror and costmap up to every scan fused so far, now."""
+        with self.costmap_current():
+            pass
+
     @contextmanager
     def mirror_current(self) -> Iterator[CostmapFollower]:
         """Hold the follower with the mirror (not the costmap) at every scan fused so far."""
@@ -135,5 +140,4 @@ class CostmapFollower:
             if self._closing.wait(max(wait, 0.0)):
                 return
             self._changed.clear()
-            with self.costmap_current():
-                pass
+            self.refresh()

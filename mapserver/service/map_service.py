@@ -465,8 +465,7 @@ class MapService:
                 self.fusion_seconds += time.perf_counter() - t0
                 self._since_snapshot += len(new)
             if self._eager_costmap:  # refreshed before the acks (reads.costmap_refresh_s 0)
-                with self.follower.costmap_current():
-                    pass
+                self.follower.refresh()
         answered = time.monotonic()
         for journaled in batch:
             self.stages.record_group(

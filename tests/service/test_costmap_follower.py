@@ -5,16 +5,15 @@ costmap still catches up without a reader, and every read sees every acknowledge
 import time
 
 import numpy as np
-from server_helpers import small_settings
-from test_costmap_lag import scans
-
-from mapserver.service.map_service import MapService
+from test_costmap_lag import scans, service
 
 
-def service(tmp_path, refresh_s: float, **overrides) -> MapService:
-    return MapService(
-        small_settings(tmp_path / "data", reads={"costmap_refresh_s": refresh_s}, **overrides)
-    )
+def wait_until(condition, timeout: float = 20.0) -> None:
+    """Poll ``condition`` every 10 ms until it holds or ``timeout`` [s] passed (the
+    caller asserts it after)."""
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 def test_scans_are_acknowledged_while_the_costmap_is_held(tmp_path):
@@ -37,9 +36,7 @@ def test_a_snapshot_due_while_the_costmap_is_held_does_not_hold_up_scans(tmp_pat
         with s.follower.costmap_current():
             for scan in scans(5):  # snapshots fall due after the 2nd and the 4th
                 s.submit([scan]).result(timeout=20)
-        deadline = time.monotonic() + 20
-        while s.journal.snapshot_seqs() == [] and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: s.journal.snapshot_seqs() != [])
         assert s.journal.snapshot_seqs()  # taken from the mirror once it was let go
     finally:
         s.close()
@@ -57,9 +54,7 @@ def test_without_a_reader_the_costmap_catches_up_on_its_own_thread(tmp_path):
             s.ingest([scan])
         assert s.costmap_read().version == 3  # a refresh, then a scan well within 1 s
         s.ingest(scans(4)[-1:])
-        deadline = time.monotonic() + 20
-        while s.costmap.version < 4 and time.monotonic() < deadline:
-            time.sleep(0.01)  # no scan, no read: the follower's thread refreshes it
+        wait_until(lambda: s.costmap.version >= 4)  # no scan, no read: its thread refreshes it
         assert s.costmap.version == s.version == 4
         with s.follower.costmap_current() as now:
             assert np.array_equal(now.costmap.costs, s.costmap.build_costs(s.belief.stamp))

@@ -13,8 +13,11 @@ def scans(n: int, unit: str = "u1"):
                       angle_min=-1.5, unit_id=unit) for k in range(1, n + 1)]  # fmt: skip
 
 
-def service(tmp_path, refresh_s: float) -> MapService:
-    return MapService(small_settings(tmp_path / "data", reads={"costmap_refresh_s": refresh_s}))
+def service(tmp_path, refresh_s: float, **overrides) -> MapService:
+    """A service in ``tmp_path`` whose costmap may lag ``refresh_s`` [s] without a reader."""
+    return MapService(
+        small_settings(tmp_path / "data", reads={"costmap_refresh_s": refresh_s}, **overrides)
+    )
 
 
 def test_with_no_reader_the_costmap_lags_and_every_read_brings_it_up_first(tmp_path):
