@@ -1,5 +1,5 @@
-"""uvicorn's h11 protocol with a deadline for each request's head, and room kept for
-new connections.
+"""uvicorn's h11 protocol with a deadline for each request's head, room kept for new
+connections, and each response sent in one write.
 
 uvicorn closes a keep-alive connection only after a response, and its timer is reset by
 any byte: a client that connects and sends nothing, or sends its headers one byte at a
@@ -16,6 +16,10 @@ descriptor limit it cannot even accept one. So a connection that opens when
 ``MIN_IDLE_S`` for their next request head: they lose nothing); when none is idle,
 uvicorn answers the new one 503.
 
+A response's status line, headers and body are sent as one ``send()``
+(``write_coalescing.CoalescingTransport``, flushed when the response is complete), not one
+for the head and one for the body.
+
 This subclasses uvicorn's ``H11Protocol`` and reads its h11 connection's state (uvicorn
 has no hook for it); ``tests/api/test_server_limits.py`` checks it against the installed
 uvicorn.
@@ -29,11 +33,14 @@ import time
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from mapserver.api.write_coalescing import CoalescingTransport
+
 MIN_IDLE_S = 0.25  # [s] a connection waiting this long for its request head is idle
 
 
 class HeadDeadlineProtocol(H11Protocol):
-    """``H11Protocol`` that closes a connection whose request head is late."""
+    """``H11Protocol`` that closes a connection whose request head is late and sends a
+    response's pieces as one write."""
 
     head_timeout_s: float = 10.0  # set by ``with_head_timeout``
     max_connections: int | None = None  # likewise; None: no eviction
@@ -41,7 +48,8 @@ class HeadDeadlineProtocol(H11Protocol):
     _idle_since: float | None = None  # [s] monotonic, while waiting for a request head
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
-        super().connection_made(transport)
+        super().connection_made(transport)  # flow control and addresses: the socket's own
+        self.transport = CoalescingTransport(transport, self.loop)  # type: ignore[assignment]
         self._watch_head()
         self._make_room()
 
@@ -79,8 +87,15 @@ class HeadDeadlineProtocol(H11Protocol):
         self._watch_head()
 
     def on_response_complete(self) -> None:
+        self.transport.flush()  # type: ignore[attr-defined]
         super().on_response_complete()
         self._watch_head()
+
+    def handle_websocket_upgrade(self, event: h11.Request) -> None:
+        """The upgraded connection's protocol writes to the socket's transport itself."""
+        self.transport.flush()  # type: ignore[attr-defined]
+        self.transport = self.transport.wrapped  # type: ignore[attr-defined]
+        super().handle_websocket_upgrade(event)
 
     def _watch_head(self) -> None:
         """Run the head timer while the connection waits for a request head, else stop it."""
