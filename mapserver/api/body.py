@@ -2,8 +2,9 @@
 ``guards.BodyMiddleware``'s).
 
 Bodies are strict JSON in UTF-8, plus ``Infinity``/``-Infinity``/``NaN`` (which the
-contract allows in ``ranges``). Two readers: orjson, and Python's ``json`` for what orjson
-refuses (those numbers, and a ``\\uD800`` escape that leaves a lone surrogate in a string).
+contract allows in ``ranges``). Two readers (``mapserver.core.json_text``): orjson, and
+Python's ``json`` for what orjson refuses (those numbers, and a ``\\uD800`` escape that
+leaves a lone surrogate in a string).
 Both read a body the same way: the fallback takes the bytes as strict UTF-8, as orjson
 does (no byte order mark, no UTF-16, no surrogates encoded as bytes: 400), and a string
 holding a lone surrogate from an escape is left for the field's rule to refuse by name
@@ -19,8 +20,6 @@ reading; every number the API takes is a float).
 
 from __future__ import annotations
 
-import json
-import sys
 from typing import Any, TypeVar
 
 import numpy as np
@@ -30,9 +29,10 @@ from fastapi.exceptions import RequestValidationError
 from numba import njit
 from pydantic import BaseModel, ValidationError
 
+from mapserver.core.json_text import read_fallback
+
 Model = TypeVar("Model", bound=BaseModel)
 MAX_DEPTH = 32  # levels of arrays and objects
-FLOAT_MAX = sys.float_info.max
 
 
 async def read_json(request: Request) -> Any:
@@ -70,13 +70,6 @@ def parse_json(raw: bytes) -> Any:
     return value
 
 
-def read_fallback(raw: bytes) -> Any:
-    """``raw`` read by Python's ``json`` as orjson reads it (strict UTF-8, integers beyond
-    64 bits as floats), plus ``Infinity``/``NaN`` and lone surrogates from ``\\u``
-    escapes; ValueError (a UnicodeDecodeError or JSONDecodeError) when it is not JSON."""
-    return json.loads(raw.decode("utf-8"), parse_int=_float_range_int)
-
-
 def _nesting(raw: bytes) -> int:
     """How many levels of arrays and objects the valid JSON text ``raw`` nests."""
     return int(_nesting_kernel(np.frombuffer(raw, dtype=np.uint8)))
@@ -104,17 +97,6 @@ def _nesting_kernel(text):
         elif byte == 93 or byte == 125:  # ] }
             depth -= 1
     return deepest
-
-
-def _float_range_int(text: str) -> int | float:
-    """A JSON integer, refused (ValueError) beyond the float range; wider than 64 bits,
-    the nearest float (as orjson reads it)."""
-    value = int(text)
-    if abs(value) > FLOAT_MAX:
-        raise ValueError(f"integer {text[:20]}... ({len(text)} digits) is beyond the float range")
-    if not -(2**63) <= value < 2**64:
-        return float(value)
-    return value
 
 
 def body_schema(model: type, binary_type: str | None = None) -> dict[str, Any]:
