@@ -93,7 +93,6 @@ class HeadDeadlineProtocol(H11Protocol):
 
     def handle_websocket_upgrade(self, event: h11.Request) -> None:
         """The upgraded connection's protocol writes to the socket's transport itself."""
-        self.transport.flush()  # type: ignore[attr-defined]
         self.transport = self.transport.wrapped  # type: ignore[attr-defined]
         super().handle_websocket_upgrade(event)
 

@@ -173,3 +173,24 @@ def test_the_server_protocol_sends_each_response_in_one_write(loop):
         assert head.startswith(b"HTTP/1.1 200 OK\r\n")
         assert b"transfer-encoding: chunked" in head.lower()
         assert body == b'b\r\n{"part": 1,\r\nc\r\n "part2": 2}\r\n0\r\n\r\n'
+
+
+def test_an_upgraded_connection_writes_to_the_socket_itself(loop):
+    """A WebSocket upgrade hands the socket's own transport to uvicorn's WebSocket
+    protocol: its frames are not held for a turn of the loop by the response coalescer."""
+    config = Config(app=json_app, http=with_head_timeout(5.0), log_level="warning")
+    config.load()
+    protocol = config.http_protocol_class(config, ServerState(), app_state={}, _loop=loop)
+    socket = RecordingTransport()
+    protocol.connection_made(socket)
+    assert isinstance(protocol.transport, CoalescingTransport)
+    protocol.data_received(
+        b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+    )
+    upgraded = socket.protocol
+    assert upgraded is not None and upgraded is not protocol
+    assert upgraded.transport is socket
+    assert protocol.transport is socket
+    upgraded.connection_lost(None)
+    one_turn(loop)
