@@ -2,7 +2,7 @@
 ``guards.BodyMiddleware``'s).
 
 Bodies are strict JSON in UTF-8, plus ``Infinity``/``-Infinity``/``NaN`` (which the
-contract allows in ``ranges``). Two readers (``mapserver.core.json_text``): orjson, and
+contract allows in ``ranges``). Two readers (``mapserver.json_text``): orjson, and
 Python's ``json`` for what orjson refuses (those numbers, and a ``\\uD800`` escape that
 leaves a lone surrogate in a string).
 Both read a body the same way: the fallback takes the bytes as strict UTF-8, as orjson
@@ -29,7 +29,7 @@ from fastapi.exceptions import RequestValidationError
 from numba import njit
 from pydantic import BaseModel, ValidationError
 
-from mapserver.core.json_text import read_fallback
+from mapserver.json_text import read_fallback
 
 Model = TypeVar("Model", bound=BaseModel)
 MAX_DEPTH = 32  # levels of arrays and objects

@@ -92,7 +92,7 @@ import numpy as np
 import orjson
 import zstandard
 
-from mapserver.core import json_text
+from mapserver import json_text
 from mapserver.core.errors import FleetmapError
 from mapserver.core.scan import json_ranges
 from mapserver.core.text import quote

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.core.json_text import loads, read_fallback
+from mapserver.json_text import loads, read_fallback
 
 # JSON values as Python's json module writes them: NaN and infinities, integers wider than
 # 64 bits, any text (lone surrogates too, escaped as \uXXXX by json.dumps).
