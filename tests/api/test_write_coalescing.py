@@ -184,10 +184,15 @@ def test_an_upgraded_connection_writes_to_the_socket_itself(loop):
     socket = RecordingTransport()
     protocol.connection_made(socket)
     assert isinstance(protocol.transport, CoalescingTransport)
-    protocol.data_received(
+    request = (
         b"GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
         b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
     )
+
+    async def receive() -> None:  # as the server's loop calls it (the WebSocket protocol
+        protocol.data_received(request)  # takes the running loop)
+
+    loop.run_until_complete(receive())
     upgraded = socket.protocol
     assert upgraded is not None and upgraded is not protocol
     assert upgraded.transport is socket
