@@ -74,9 +74,15 @@ class FusedScans:
 
     def scans(self) -> Iterator[tuple[int, Scan]]:
         """The fused scans as (journal seq, scan), in seq order, read one at a time."""
-        for record in journal_records(self.journal):
-            if record.scan is not None:
-                yield record.seq, record.scan
+        return journal_fused(self.journal)
+
+
+def journal_fused(journal: Path) -> Iterator[tuple[int, Scan]]:
+    """(seq, scan) of each scan in the server's ``journal`` that it fuses at start-up, in
+    seq order, read one at a time."""
+    for record in journal_records(journal):
+        if record.scan is not None:
+            yield record.seq, record.scan
 
 
 def read_fused(data_dir: Path, folder: TemporaryDirectory | None = None) -> FusedScans:

@@ -67,12 +67,12 @@ from scenarios.replay.fused import (
     FUSED_SCHEMA_NAME,
     FUSED_TOPIC,
     MAP_SETTINGS_METADATA,
-    fused_message,
     fused_scan,
     in_fusion_order,
     settings_metadata,
     settings_of,
 )
+from scenarios.replay.fused_worker import fused_items
 from scenarios.replay.log import run_log
 from scenarios.run.record import RunRecord
 
@@ -220,8 +220,8 @@ def viewing_items(record: RunRecord) -> tuple[Iterator[Item], ...]:
 def _fused(record: RunRecord) -> Iterator[Item]:
     if record.fused is None:
         return
-    for seq, scan in record.fused.scans():
-        yield stamp_ns(scan.stamp), _FUSED, fused_message(seq, scan)
+    for ns, message in fused_items(record.fused):
+        yield ns, _FUSED, message
 
 
 # ------------------------------------------------------------------------------ scans
