@@ -10,13 +10,18 @@ the sim's, so the server must not have seen later stamps of these units (docs/ht
 - ``in_flight = n > 0``: a worker thread sends the batches in order while the simulation
   runs on, with at most ``n`` ticks' batches queued (``post`` blocks when the queue is
   full, so a slower server slows the simulation down rather than piling up scans).
+  The ticks that queued while a request was on its way go out together, in order, in
+  requests of up to ``max_batch`` scans: a backlog costs one request's overhead (HTTP,
+  the journal's commit) rather than one per tick. A refused request refuses all of
+  its scans (the batch rule), so a tick sent with a refused one is not journaled either.
   ``post`` returns the acks received since the last call (earlier ticks' scans);
   ``flush`` waits for every batch and returns the remaining acks. After a failed request
   no further batch is sent, and ``post``, ``flush`` and ``close`` raise its error.
 
 With ``declare_every_s`` set, the poster also declares the simulation's clock to the
 server (``PUT /v1/clock``, as ROS's ``/clock``; docs/map-time.md) before a tick's scans
-whenever their newest stamp is that much past the last declaration, so the server judges
+whenever their newest stamp is that much past the last declaration (tick by tick, also
+for ticks sent together: the same declarations however the ticks were grouped), so the server judges
 the fleet's stamps against the simulation's time. A server that does not take the
 declaration (an older one: 404 or 405; a token that is not an admin's: 403) is told no
 more, and stamps are then judged by the server's own rule.
@@ -79,7 +84,7 @@ class ScanPoster:
         """Send one tick's ``scans``; returns their acks (waiting) or, with ``in_flight``,
         the acks received since the last call."""
         if self._queue is None:
-            acks = self._send(scans)
+            acks = self._send([scans])
             self.posted += len(acks)
             return acks
         self._raise_error()
@@ -109,8 +114,12 @@ class ScanPoster:
         self.close()
 
     # ------------------------------------------------------------------ internals
-    def _send(self, scans: Sequence[Scan]) -> list[ScanAck]:
-        self._declare_clock(scans)
+    def _send(self, ticks: Sequence[Sequence[Scan]]) -> list[ScanAck]:
+        """Send ``ticks`` in order, their scans together: each tick's clock declaration
+        first (``declare_every_s``), then the scans in requests of up to ``max_batch``."""
+        for tick in ticks:
+            self._declare_clock(tick)
+        scans = [scan for tick in ticks for scan in tick]
         acks: list[ScanAck] = []
         for start in range(0, len(scans), self.max_batch):
             acks += self.client.post_scans(scans[start : start + self.max_batch])
@@ -137,11 +146,10 @@ class ScanPoster:
     def _run(self) -> None:
         assert self._queue is not None
         while True:
-            batch = self._queue.get()
+            ticks = self._take_queued()
             try:
-                if batch is None:
-                    return
-                if self._error is None:
+                batch = [tick for tick in ticks if tick is not None]
+                if self._error is None and batch:
                     acks = self._send(batch)
                     with self._lock:
                         self._acks += acks
@@ -149,7 +157,23 @@ class ScanPoster:
             except Exception as exc:  # raised to the caller by post, flush and close
                 self._error = exc
             finally:
-                self._queue.task_done()
+                for _ in ticks:
+                    self._queue.task_done()
+            if ticks[-1] is None:
+                return
+
+    def _take_queued(self) -> list[Sequence[Scan] | None]:
+        """The next queued tick (waiting for one) and every tick queued behind it, up to
+        the stop (None): the ticks that piled up while the last request was on its way
+        go out together, in order, in requests of up to ``max_batch`` scans."""
+        assert self._queue is not None
+        ticks = [self._queue.get()]
+        while ticks[-1] is not None:
+            try:
+                ticks.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return ticks
 
     def _take_acks(self) -> list[ScanAck]:
         with self._lock:

@@ -28,8 +28,10 @@ class FakeServer:
         self.refuse_stamp = refuse_stamp
         self.gate = threading.Event()
         self.gate.set()
+        self.entered = threading.Event()  # set when a request arrives
 
     def __call__(self, request: httpx.Request) -> httpx.Response:
+        self.entered.set()
         self.gate.wait(10)
         assert request.url.path == "/v1/scans/batch"
         assert request.headers["content-type"] == "application/vnd.fleetmap.scan"
@@ -42,6 +44,11 @@ class FakeServer:
         self.batches.append([(s["unit_id"], s["stamp"]) for s in body])
         acks = [{"seq": start + i + 1, "map_version": start + i + 1} for i in range(len(body))]
         return httpx.Response(200, json={"acks": acks})
+
+
+def sent(server: FakeServer) -> list[float]:
+    """The stamps the server has taken so far, in order."""
+    return [stamp for batch in server.batches for _, stamp in batch]
 
 
 def client(server: FakeServer) -> MapClient:
@@ -74,6 +81,7 @@ def test_a_failed_request_stops_the_pipeline_and_is_raised():
     server = FakeServer(refuse_stamp=2.0)
     poster = ScanPoster(client(server), in_flight=2)
     poster.post(scans(1, 1.0))
+    poster.flush()  # tick 1 alone: the refusal of tick 2 does not take it along
     poster.post(scans(1, 2.0))
     with pytest.raises(MapRequestError, match="409"):
         poster.flush()
@@ -82,6 +90,37 @@ def test_a_failed_request_stops_the_pipeline_and_is_raised():
     with pytest.raises(MapRequestError):
         poster.close()
     assert [stamp for batch in server.batches for _, stamp in batch] == [1.0]
+
+
+def test_ticks_queued_behind_a_request_go_out_together_in_order():
+    server = FakeServer()
+    server.gate.clear()  # the first tick's request waits at the server
+    with ScanPoster(client(server), max_batch=5, in_flight=4) as poster:
+        poster.post(scans(2, 1.0))
+        assert server.entered.wait(10)  # the worker is on its way with tick 1
+        for stamp in (2.0, 3.0, 4.0):
+            poster.post(scans(2, stamp))
+        server.gate.set()
+        acks = poster.flush()
+    assert [len(b) for b in server.batches] == [2, 5, 1]  # ticks 2-4: one batch, split at 5
+    assert sent(server) == [1.0, 1.0, 2.0, 2.0, 3.0, 3.0, 4.0, 4.0]
+    assert [a.seq for a in acks] == list(range(1, 9)) and poster.posted == 8
+
+
+def test_a_refused_request_refuses_the_ticks_sent_with_it():
+    server = FakeServer(refuse_stamp=3.0)
+    server.gate.clear()
+    poster = ScanPoster(client(server), in_flight=4)
+    poster.post(scans(1, 1.0))
+    assert server.entered.wait(10)
+    poster.post(scans(1, 2.0))
+    poster.post(scans(1, 3.0))
+    server.gate.set()
+    with pytest.raises(MapRequestError, match="409"):
+        poster.flush()
+    assert sent(server) == [1.0]  # ticks 2 and 3 went together, and were refused together
+    with pytest.raises(MapRequestError):
+        poster.close()
 
 
 @pytest.mark.parametrize(("field", "value"), [("max_batch", 0), ("in_flight", -1)])
