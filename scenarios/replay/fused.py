@@ -6,7 +6,8 @@ Source: the data dir of the run's own server once it has stopped: its map settin
 journal read as the server reads it at start-up (``mapserver.service.replay.journal_records``:
 seq order, damaged records and clock-rule breakers left out), which is the order the
 server fused them in. The journal is read while the replay is written, one scan at a
-time, so a long run's scans are never all in memory.
+time, so a long run's scans are never all in memory (for a long run, in a child process:
+``scenarios.replay.fused_worker``).
 
 In the MCAP file:
 
