@@ -21,8 +21,8 @@ the sim's, so the server must not have seen later stamps of these units (docs/ht
 With ``declare_every_s`` set, the poster also declares the simulation's clock to the
 server (``PUT /v1/clock``, as ROS's ``/clock``; docs/map-time.md) before a tick's scans
 whenever their newest stamp is that much past the last declaration (tick by tick, also
-for ticks sent together: the same declarations however the ticks were grouped), so the server judges
-the fleet's stamps against the simulation's time. A server that does not take the
+for ticks sent together: the same declarations however the ticks were grouped), so the
+server judges the fleet's stamps against the simulation's time. A server that does not take the
 declaration (an older one: 404 or 405; a token that is not an admin's: 403) is told no
 more, and stamps are then judged by the server's own rule.
 
