@@ -22,13 +22,23 @@ import orjson
 FLOAT_MAX = sys.float_info.max
 
 
+class TooDeep(ValueError):
+    """The text nests arrays and objects deeper than a reader can follow."""
+
+
 def loads(raw: bytes) -> Any:
-    """``raw`` as JSON (module docstring); ValueError (a UnicodeDecodeError or
+    """``raw`` as JSON (module docstring); TooDeep when it nests deeper than orjson's
+    limit (1,024 levels) or Python's recursion, else ValueError (a UnicodeDecodeError or
     JSONDecodeError) when neither reader takes it."""
     try:
         return orjson.loads(raw)
-    except orjson.JSONDecodeError:
+    except orjson.JSONDecodeError as exc:
+        if "depth limit" in str(exc):
+            raise TooDeep(str(exc)) from None
+    try:
         return read_fallback(raw)
+    except RecursionError:
+        raise TooDeep("nested beyond Python's recursion limit") from None
 
 
 def read_fallback(raw: bytes) -> Any:

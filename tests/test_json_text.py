@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapserver.json_text import loads, read_fallback
+from mapserver.json_text import TooDeep, loads, read_fallback
 
 # JSON values as Python's json module writes them: NaN and infinities, integers wider than
 # 64 bits, any text (lone surrogates too, escaped as \uXXXX by json.dumps).
@@ -79,4 +79,16 @@ def test_an_integer_wider_than_64_bits_is_the_nearest_float_from_either_reader()
 )
 def test_a_text_neither_reader_takes_is_a_value_error(raw):
     with pytest.raises(ValueError):
+        loads(raw)
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        b"[" * 2000 + b"]" * 2000,  # past orjson's depth limit
+        b"[" * 1010 + b"NaN" + b"]" * 1010,  # orjson refuses the NaN; json runs out of stack
+    ],
+)
+def test_a_text_nested_past_the_readers_is_too_deep(raw):
+    with pytest.raises(TooDeep):
         loads(raw)
