@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -62,11 +63,8 @@ def replay_journal(
     belief = belief_for(read_settings(data_dir), data_dir / MAP_SETTINGS_FILE)
     journal_file = source if source.is_file() else source / JOURNAL_FILENAME
     after = 0
-    try:
-        with open_journal_for_replay(journal_file) as journal:
-            start = replay_start(journal, belief.geometry.shape, belief.state_names)
-    except (JournalError, OSError) as exc:
-        raise ReplayError(f"{journal_file}: {exc}") from None
+    with opened_journal(journal_file) as journal:
+        start = replay_start(journal, belief.geometry.shape, belief.state_names)
     if start is not None:
         if until is not None and until < start.stamp:
             raise ReplayError(
@@ -157,9 +155,17 @@ def journal_records(
 ) -> Iterator[ReadRecord]:
     """The journal's records after seq ``after`` one by one as the server reads them
     (``read_records``); ReplayError when the journal itself cannot be read."""
+    with opened_journal(journal_file) as journal:
+        not_after = time.time() + DEFAULT_MAX_LEAD_S  # as the server's start-up does
+        yield from read_records(journal, after=after, until=until, not_after=not_after)
+
+
+@contextmanager
+def opened_journal(journal_file: Path) -> Iterator[Journal]:
+    """The journal at ``journal_file`` open read-only; ReplayError naming the file when it,
+    or a read of it inside the ``with``, fails (a missing file, a damaged page)."""
     try:
         with open_journal_for_replay(journal_file) as journal:
-            not_after = time.time() + DEFAULT_MAX_LEAD_S  # as the server's start-up does
-            yield from read_records(journal, after=after, until=until, not_after=not_after)
+            yield journal
     except (JournalError, OSError) as exc:
         raise ReplayError(f"{journal_file}: {exc}") from None

@@ -31,8 +31,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import scenarios
-from mapserver.service.replay import ReplayError
-from mapserver.store.journal import JournalError, open_journal_for_replay
+from mapserver.service.replay import ReplayError, opened_journal
 from scenarios.replay.foxglove_messages import stamp_ns
 from scenarios.replay.fused import FusedScans, fused_message, journal_fused
 
@@ -102,7 +101,7 @@ def _child_env() -> dict[str, str]:
 def _widen(stream) -> None:
     """Give the pipe behind ``stream`` a ``_PIPE_BYTES`` buffer (Linux; elsewhere, or
     above the system's limit, it keeps its own)."""
-    setpipe = getattr(fcntl, "F_SETPIPE_SZ", None) if fcntl is not None else None
+    setpipe = getattr(fcntl, "F_SETPIPE_SZ", None)  # None without fcntl too
     if setpipe is None:
         return
     try:
@@ -113,11 +112,8 @@ def _widen(stream) -> None:
 
 def _seq_count(journal: Path) -> int:
     """How many seqs the journal spans; ReplayError when it cannot be read."""
-    try:
-        with open_journal_for_replay(journal) as opened:
-            return opened.last_seq() - opened.deleted_through()
-    except (JournalError, OSError) as exc:
-        raise ReplayError(f"{journal}: {exc}") from None
+    with opened_journal(journal) as opened:
+        return opened.last_seq() - opened.deleted_through()
 
 
 def main(argv: list[str]) -> int:
@@ -129,7 +125,7 @@ def main(argv: list[str]) -> int:
             out.write(pack(ns, len(message)))
             out.write(message)
         out.flush()
-    except (ReplayError, ValueError) as exc:
+    except ValueError as exc:  # ReplayError among them
         print(exc, file=sys.stderr)
         return 1
     except BrokenPipeError:  # the writer stopped reading
