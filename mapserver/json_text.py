@@ -19,10 +19,12 @@ from typing import Any
 
 import orjson
 
+from mapserver.core.errors import FleetmapError
+
 FLOAT_MAX = sys.float_info.max
 
 
-class TooDeep(ValueError):
+class TooDeep(FleetmapError, ValueError):
     """The text nests arrays and objects deeper than a reader can follow."""
 
 

@@ -17,10 +17,11 @@ from hypothesis import strategies as st
 from server_helpers import JSON, ServerProcess, scan_body, small_settings
 
 from mapserver.api.app import create_app
-from mapserver.api.body import parse_json, read_fallback
+from mapserver.api.body import parse_json
 from mapserver.core.scan import Pose2D, Scan, ScanError
 from mapserver.core.scan_binary import CONTENT_TYPE, encode_batch, encode_scan
 from mapserver.core.text import MAX_ID_CHARS, quote, text_problem
+from mapserver.json_text import read_fallback
 
 SURROGATE = "evil\ud800"
 HUGE = "x" * 1_000_000
