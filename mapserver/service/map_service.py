@@ -27,7 +27,9 @@ changed into the mirror): they gather what they need (a costmap of one version w
 version and stamp, the values at queried points) and compute outside it, so a slow
 reader never stalls ingest.
 
-Durability. Start-up loads the newest snapshot and replays the journal after it: the
+Start-up first compiles (or loads from numba's cache) the fusion kernel of the map's
+policy, so that no scan's answer waits for it (seconds on a cold cache).
+Durability. Start-up then loads the newest snapshot and replays the journal after it: the
 same belief bit for bit, and the costmap rebuilt at the map's stamp. Snapshots are taken
 every ``snapshot_every_scans`` scans or ``snapshot_every_seconds`` [s] of wall time, and
 no more often than keeps their saving within ``snapshot_max_share`` of the wall time
@@ -55,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from mapserver.core.belief import BeliefGrid, FusionResult
+from mapserver.core.belief import BeliefGrid, FusionResult, load_fusion_kernels
 from mapserver.core.errors import FleetmapError
 from mapserver.core.occupancy import occupancy_percent
 from mapserver.core.patch import Patch
@@ -177,6 +179,14 @@ class MapService:
         self.snapshot_failures = 0  # snapshot saves that failed (metrics)
         self.retention = settings.journal.retention()
         self.belief = settings.belief_grid(self.geometry)
+        self.kernel_load_seconds = load_fusion_kernels([self.belief.policy])
+        """[s] compiling (or loading from numba's cache) the fusion kernel of the map's
+        policy at start-up, so the first scan is not the one to wait for it."""
+        logger.info(
+            "fusion kernel of policy %s ready in %.2f s",
+            self.belief.policy.value,
+            self.kernel_load_seconds,
+        )
         self.version = 0
         self.clock = MapClock(
             settings.clock.max_lead_s, settings.clock.sim_ttl_s, settings.clock.max_sim_rate
