@@ -38,9 +38,10 @@ world's clock (``time``, advanced by the simulation with ``advance_to``), so
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from operator import itemgetter
+from operator import attrgetter, itemgetter
 from types import MappingProxyType
 from typing import Any
 
@@ -81,6 +82,10 @@ class Change:
     id: str
     before: Obstacle | None
     after: Obstacle | None
+
+
+_time_of = attrgetter("time")  # the keys the change log is searched by (in both orders)
+_revision_of = attrgetter("revision")
 
 
 @dataclass(frozen=True)
@@ -221,17 +226,14 @@ class World:
         """The changes after ``revision``, oldest first; None when a ``reset`` came since."""
         if revision < self._reset_revision:
             return None
-        return [c for c in self._changes if c.revision > revision]
+        return self._changes[bisect_right(self._changes, revision, key=_revision_of) :]
 
     def revision_at(self, time: float) -> int:
         """The revision of the obstacles at sim ``time`` [s]: that of the last change stamped
         at or before it (since the last reset); equal revisions, equal obstacles."""
-        revision = self._reset_revision
-        for change in self._changes:
-            if change.time > time:
-                break
-            revision = change.revision
-        return revision
+        # the log is in time order (``advance_to`` never goes back) and in revision order
+        last = bisect_right(self._changes, time, key=_time_of)
+        return self._changes[last - 1].revision if last else self._reset_revision
 
     def obstacles_at(self, time: float) -> dict[str, Obstacle]:
         """The obstacles at sim ``time`` [s]: the layout's, then every change stamped at or

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fleet.layout import Kind, Layout, LayoutError, Obstacle
 from fleet.lidar import Lidar, LidarConfig
@@ -66,6 +68,36 @@ def test_the_change_log_gives_the_obstacles_at_any_past_time(world):
     assert sorted(world.obstacles_at(3.0)) == ["bob"] == sorted(world.obstacles)
     assert [c.id for c in world.changes_since(1)] == ["bob", "rack-1"]
     assert world.revision_at(1.5) == 1 and world.revision_at(99.0) == world.revision == 3
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    before_reset=st.lists(st.floats(0.0, 3.0), max_size=6),
+    steps=st.lists(st.floats(0.0, 3.0), min_size=1, max_size=25),
+    probes=st.lists(st.floats(-1.0, 80.0), min_size=1, max_size=10),
+)
+def test_revisions_and_changes_since_are_those_of_the_log_read_in_order(
+    before_reset, steps, probes
+):
+    """``revision_at`` and ``changes_since`` search the log; here they are held to reading
+    it change by change, on logs with several changes at one time, after a reset."""
+    with World(Layout(40.0, 10.0)) as world:
+        for i, dt in enumerate(before_reset):
+            world.advance_to(world.time + dt)
+            world.add(Obstacle(f"old-{i}", Kind.TOTE, Box(1.0 + i, 1.0, 0.4, 0.4)))
+        world.reset()
+        start = world.revision
+        for i, dt in enumerate(steps):  # dt 0: a second change at the same time
+            world.advance_to(world.time + dt)
+            world.add(Obstacle(f"tote-{i}", Kind.TOTE, Box(1.0 + i, 5.0, 0.4, 0.4)))
+        log = world.changes_since(start)
+        assert [c.id for c in log] == [f"tote-{i}" for i in range(len(steps))]
+        for time in [*probes, *(c.time for c in log)]:
+            read = [c.revision for c in log if c.time <= time]
+            assert world.revision_at(time) == (read[-1] if read else start)
+        for revision in range(start, world.revision + 1):
+            assert world.changes_since(revision) == [c for c in log if c.revision > revision]
+        assert world.changes_since(start - 1) is None  # before the reset
 
 
 def test_reset_restores_the_layout_and_the_clock(world):
