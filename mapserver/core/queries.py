@@ -139,20 +139,26 @@ def query_segments(
         total = np.where(np.isfinite(span), np.floor(span) + 1.0, math.inf)  # on or off the map
     grid = (g.width, g.height, g.origin_x, g.origin_y, g.resolution)
     flat = np.ascontiguousarray(costs).reshape(-1)
-    on_map, max_cost, unknown, count, first = _segments_kernel(flat, grid, seg)
+    # Python scalars from here: a lane graph's refresh reads hundreds of segments, and
+    # indexing numpy arrays element by element cost more than the kernel
+    per_segment = zip(
+        *(column.tolist() for column in _segments_kernel(flat, grid, seg)),
+        total.tolist(),
+        strict=True,
+    )
     reports = []
-    for i in range(seg.shape[0]):
-        inside_cells = count[i] if on_map[i] else 0
-        off_map = max(total[i] - inside_cells, 0.0)
-        blocked = on_map[i] and first[i] >= 0
-        known_max = max_cost[i] if on_map[i] else -1
-        unknown_cells = (unknown[i] if on_map[i] else 0) + off_map
-        row, col = divmod(int(first[i]), g.width)
+    for on_map, max_cost, unknown, count, first, cells in per_segment:
+        inside_cells = count if on_map else 0
+        off_map = max(cells - inside_cells, 0.0)
+        blocked = on_map and first >= 0
+        known_max = max_cost if on_map else -1
+        unknown_cells = (unknown if on_map else 0) + off_map
+        row, col = divmod(first, g.width)
         reports.append(
             SegmentReport(
                 max_cost=None if known_max < 0 else int(known_max),
                 blocked=bool(blocked),
-                unknown_fraction=_fraction(unknown_cells, max(total[i], inside_cells)),
+                unknown_fraction=_fraction(unknown_cells, max(cells, inside_cells)),
                 first_blocked=g.cell_to_world(col, row) if blocked else None,
             )
         )
