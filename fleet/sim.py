@@ -349,13 +349,20 @@ class FleetSim:
         true = [self.world.unit_pose(uid) for uid in order]
         poses = np.array([(q.x, q.y, q.yaw) for q in true]).reshape(-1, 3)
         widest = max(u.spec.drive.radius for u in self._units.values())
+        if not due:
+            return {}
+        # every due unit's distances to every unit at once (the same hypot per pair)
+        rows = np.array([order[unit_id] for unit_id, _ in due])
+        reach = np.array([unit.spec.lidar.range_max + widest for _, unit in due])
+        near = (
+            np.hypot(poses[:, 0] - poses[rows, 0, None], poses[:, 1] - poses[rows, 1, None])
+            <= reach[:, None]
+        )
+        near[np.arange(len(due)), rows] = False
         scenes = {}
-        for unit_id, unit in due:
-            k = order[unit_id]
-            x, y, yaw = poses[k]
-            near = np.hypot(poses[:, 0] - x, poses[:, 1] - y) <= unit.spec.lidar.range_max + widest
-            near[k] = False
-            others = np.flatnonzero(near)
+        for j, (unit_id, _) in enumerate(due):
+            x, y, yaw = poses[rows[j]]
+            others = np.flatnonzero(near[j])
             scenes[unit_id] = (
                 self.world.revision, x, y, yaw, others.tobytes(), poses[others].tobytes(),
             )  # fmt: skip

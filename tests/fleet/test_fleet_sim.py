@@ -298,3 +298,41 @@ def test_a_still_unit_among_still_things_reuses_its_last_cast_and_anything_movin
         world.add(Obstacle("tote-1", Kind.TOTE, Box(5.0, 4.8, 0.6, 0.4)))  # the world changes
         sim.step(0.1)
         assert sorted(casts) == ["u1", "u2"]
+
+
+def scenes_unit_by_unit(sim: FleetSim, due) -> dict[str, tuple]:
+    """The reference: each due unit's scene key with its own distances to every unit."""
+    ids = list(sim._units)
+    poses = np.array([(q.x, q.y, q.yaw) for q in map(sim.world.unit_pose, ids)])
+    widest = max(u.spec.drive.radius for u in sim._units.values())
+    scenes = {}
+    for unit_id, unit in due:
+        k = ids.index(unit_id)
+        x, y, yaw = poses[k]
+        near = np.hypot(poses[:, 0] - x, poses[:, 1] - y) <= unit.spec.lidar.range_max + widest
+        near[k] = False
+        others = np.flatnonzero(near)
+        scene = (sim.world.revision, x, y, yaw, others.tobytes(), poses[others].tobytes())
+        scenes[unit_id] = scene
+    return scenes
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_each_units_scene_holds_the_units_within_its_lidars_reach(seed):
+    rng = np.random.default_rng(seed)
+    specs = [
+        UnitSpec(
+            f"u{i}",
+            Pose2D(*rng.uniform((1.0, 1.0), (29.0, 19.0)), rng.uniform(-math.pi, math.pi)),
+            lidar=LidarConfig(beams=90, range_max=float(rng.choice([2.0, 5.0, 12.0]))),
+        )
+        for i in range(12)
+    ]
+    with World(Layout(30.0, 20.0)) as world:
+        sim = FleetSim(world, specs, seed=seed)
+        units = list(sim._units.items())
+        for due in (units, units[::3], units[5:6], []):
+            assert sim._scenes(due) == scenes_unit_by_unit(sim, due)
+        some = sim._scenes(units)
+        assert any(len(key[4]) for key in some.values())  # some units see others
+        assert any(not len(key[4]) for key in some.values())  # and some see none
