@@ -165,6 +165,15 @@ class MapService:
     """The shared map of one data directory. ``close()`` stops it."""
 
     def __init__(self, settings: Settings) -> None:
+        # before anything is opened: a kernel that cannot compile leaves nothing to close
+        self.kernel_load_seconds = load_fusion_kernels([settings.policy])
+        """[s] compiling (or loading from numba's cache) the fusion kernel of the map's
+        policy at start-up, so the first scan is not the one to wait for it."""
+        logger.info(
+            "fusion kernel of policy %s ready in %.2f s",
+            settings.policy.value,
+            self.kernel_load_seconds,
+        )
         self.settings = settings
         self.geometry = settings.geometry()
         self.data_dir = Path(settings.data_dir)
@@ -179,14 +188,6 @@ class MapService:
         self.snapshot_failures = 0  # snapshot saves that failed (metrics)
         self.retention = settings.journal.retention()
         self.belief = settings.belief_grid(self.geometry)
-        self.kernel_load_seconds = load_fusion_kernels([self.belief.policy])
-        """[s] compiling (or loading from numba's cache) the fusion kernel of the map's
-        policy at start-up, so the first scan is not the one to wait for it."""
-        logger.info(
-            "fusion kernel of policy %s ready in %.2f s",
-            self.belief.policy.value,
-            self.kernel_load_seconds,
-        )
         self.version = 0
         self.clock = MapClock(
             settings.clock.max_lead_s, settings.clock.sim_ttl_s, settings.clock.max_sim_rate
