@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from mapserver.client import MapClient
 from mapserver.core.scan import Scan
 from scenarios.run.embedded_server import EmbeddedServer
 from scenarios.run.runner import SIM_SERVER
+from tests.benchmarks.fleet_load import ingest_stage_means, ingest_stage_totals
 
 
 def make_ticks(count: int, units: int, beams: int, first: int, seed: int = 0) -> list[list[Scan]]:
@@ -59,21 +59,6 @@ def post(client: MapClient, ticks: list[list[Scan]], group: int) -> float:
     return time.perf_counter() - start
 
 
-def stage_sums(metrics: str) -> dict[str, tuple[float, float]]:
-    """(count, sum [s]) of ``fleetmap_ingest_stage_seconds`` by stage."""
-    out: dict[str, list[float]] = {}
-    pattern = r'fleetmap_ingest_stage_seconds_(sum|count)\{stage="(\w+)"\} ([0-9.e+-]+)'
-    for kind, stage, value in re.findall(pattern, metrics):
-        out.setdefault(stage, [0.0, 0.0])[0 if kind == "count" else 1] = float(value)
-    return {stage: (count, total) for stage, (count, total) in out.items()}
-
-
-def per_request(before: dict, after: dict, stage: str) -> float:
-    """Mean seconds a request spent in ``stage`` between two ``stage_sums``."""
-    count = after[stage][0] - before.get(stage, (0.0, 0.0))[0]
-    return (after[stage][1] - before.get(stage, (0.0, 0.0))[1]) / count
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=20, help="scans a tick")
@@ -92,11 +77,11 @@ def main() -> None:
                     for group in (1, args.group):
                         ticks = make_ticks(args.ticks, args.units, args.beams, first)
                         first += args.ticks
-                        before = stage_sums(http.get("/metrics").text)
+                        before = ingest_stage_totals(server.url)
                         seconds[group] = post(client, ticks, group)
-                        after = stage_sums(http.get("/metrics").text)
+                        means = ingest_stage_means(before, ingest_stage_totals(server.url))
                         stages = ", ".join(
-                            f"{stage} {per_request(before, after, stage) * 1e3:.2f} ms"
+                            f"{stage} {means[stage]:.2f} ms"
                             for stage in ("journal", "fuse", "answered")
                         )
                         print(
