@@ -345,12 +345,12 @@ class FleetSim:
         """What each scanning unit's LiDAR can see, as a key (``Lidar.true_ranges``): the
         world's revision, the unit's true pose and the true poses of the units within
         its range. A unit standing still among still things casts no rays."""
+        if not due:
+            return {}
         order = {uid: k for k, uid in enumerate(self._units)}
         true = [self.world.unit_pose(uid) for uid in order]
         poses = np.array([(q.x, q.y, q.yaw) for q in true]).reshape(-1, 3)
         widest = max(u.spec.drive.radius for u in self._units.values())
-        if not due:
-            return {}
         # every due unit's distances to every unit at once (the same hypot per pair)
         rows = np.array([order[unit_id] for unit_id, _ in due])
         reach = np.array([unit.spec.lidar.range_max + widest for _, unit in due])
