@@ -29,7 +29,8 @@ def free_port() -> int:
 class EmbeddedServer:
     """``fleetmap serve`` on 127.0.0.1 with ``settings`` (a dict of server settings,
     written to a YAML config) on ``data_dir``, on ``port`` (None: a free one). Ready when
-    constructed."""
+    constructed, unless ``wait`` is False (then call ``wait_ready``: servers started
+    together start side by side)."""
 
     def __init__(
         self,
@@ -38,6 +39,7 @@ class EmbeddedServer:
         env: dict[str, str] | None = None,
         ready_timeout: float = 60.0,
         port: int | None = None,
+        wait: bool = True,
     ) -> None:
         self.port = free_port() if port is None else port
         self.url = f"http://127.0.0.1:{self.port}"
@@ -52,11 +54,15 @@ class EmbeddedServer:
         self.proc = subprocess.Popen(
             cmd, env=dict(os.environ, **(env or {})), stderr=subprocess.PIPE, text=True
         )
-        self._wait_ready(ready_timeout)
+        self.ready_timeout = ready_timeout
+        if wait:
+            self.wait_ready()
 
-    def _wait_ready(self, timeout: float) -> None:
+    def wait_ready(self, timeout: float | None = None) -> None:
         """Poll ``/healthz`` every 0.1 s until it answers 200, with one client (a client
-        a poll built an SSL context each time: 1.5 s of CPU over a run's start-up)."""
+        a poll built an SSL context each time: 1.5 s of CPU over a run's start-up), at
+        most ``timeout`` [s] (None: the ``ready_timeout`` it was made with)."""
+        timeout = self.ready_timeout if timeout is None else timeout
         deadline = time.monotonic() + timeout
         with httpx.Client(timeout=1.0) as http:
             while time.monotonic() < deadline:

@@ -3,6 +3,11 @@
 ``run`` starts a map server of its own on a free loopback port (or uses ``server_url``),
 resets a ``scenarios.run.episode.Episode`` on it, steps it to the scenario's end and returns
 the scored ``RunRecord``. The episode module says what each step does.
+
+With ``map_server.zones`` above 1 it starts one server per zone instead, side by side
+(``Scenario.zone_layout``: strips of the floor with borders), and the episode reads and
+posts through a ``ZonedMapClient``; such a run's record holds no fused scans (its replay
+keeps the sampled LaserScans, as a run against an outside server's does).
 """
 
 from __future__ import annotations
@@ -10,11 +15,15 @@ from __future__ import annotations
 import math
 import tempfile
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
+from dataclasses import asdict
 from pathlib import Path
 
 import httpx
 
 from mapserver.client import MapClient
+from mapserver.client.zoned import ZonedMapClient
+from mapserver.client.zones import ZoneLayout
 from mapserver.core.geometry import GridGeometry
 from scenarios.replay.fused import read_fused
 from scenarios.run.embedded_server import EmbeddedServer
@@ -49,17 +58,28 @@ def run(
     more observers of the episode (a benchmark's). With an embedded server the record
     holds what it fused (``RunRecord.fused``, read once it stopped)."""
     tmp = tempfile.TemporaryDirectory(prefix="fleetmap-run-")  # kept by record.fused
-    server = None
+    servers: list[EmbeddedServer] = []
+    layout = setup.zone_layout()
     try:
+        urls = [server_url] if server_url is not None else []
         if server_url is None:
             data_dir = Path(tmp.name) / "data" if data_dir is None else Path(data_dir)
-            server = EmbeddedServer(data_dir, {**setup.server_overrides(), **SIM_SERVER})
-            server_url = server.url
+            servers = start_servers(setup, layout, data_dir)
+            urls = [server.url for server in servers]
             if announce is not None:
-                announce(f"map server for this run: {server_url}/ (the live viewer)")
+                for k, url in enumerate(urls):
+                    zone = f" (zone {k} of {len(urls)})" if len(urls) > 1 else ""
+                    announce(f"map server for this run{zone}: {url}/ (the live viewer)")
         try:
-            with httpx.Client(base_url=server_url, timeout=60) as http:
-                client = MapClient(http, token=token, timeout=60)
+            with ExitStack() as stack:
+                clients = [
+                    MapClient(stack.enter_context(httpx.Client(base_url=url, timeout=60)),
+                              token=token, timeout=60)
+                    for url in urls
+                ]  # fmt: skip
+                client = clients[0]
+                if len(clients) > 1:
+                    client = stack.enter_context(ZonedMapClient(layout, clients))
                 extra = [*observers, *([ProgressReport(progress)] if progress else [])]
                 with Episode(setup, client, options, extra) as episode:
                     episode.reset()
@@ -67,16 +87,37 @@ def run(
                         episode.step()
                     record = episode.finish()
         finally:
-            if server is not None:
+            for server in servers:
                 server.stop()
-        if server is None:
+        if len(servers) == 1:  # read while the replay is written; the folder goes with it
+            record.fused = read_fused(servers[0].data_dir, tmp)
+        else:
             tmp.cleanup()
-        else:  # read while the replay is written; the temporary folder goes with it
-            record.fused = read_fused(server.data_dir, tmp)
         return record
     except BaseException:
         tmp.cleanup()
         raise
+
+
+def start_servers(setup: Scenario, layout: ZoneLayout, data_dir: Path) -> list[EmbeddedServer]:
+    """The run's own map servers, ready: one on ``data_dir`` for a single zone, else one
+    per zone on ``data_dir/zone-<k>`` with that zone's grid, started side by side."""
+    settings = {**setup.server_overrides(), **SIM_SERVER}
+    if layout.zones == 1:
+        return [EmbeddedServer(data_dir, settings)]
+    servers: list[EmbeddedServer] = []
+    try:
+        for k in range(layout.zones):
+            grid = asdict(layout.geometry(k))  # the server's grid settings: the same names
+            zone_dir = data_dir / f"zone-{k}"
+            servers.append(EmbeddedServer(zone_dir, {**settings, "grid": grid}, wait=False))
+        for server in servers:
+            server.wait_ready()
+    except BaseException:
+        for server in servers:
+            server.kill()
+        raise
+    return servers
 
 
 def grid_geometry(width_m: float, height_m: float, resolution: float) -> GridGeometry:

@@ -40,6 +40,7 @@ from fleet.lidar import LidarConfig
 from fleet.localization import PoseNoise
 from fleet.sim import UnitSpec
 from fleet.unit import DriveLimits
+from mapserver.client.zones import ZoneLayout
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.inflation import InflationParams
 from mapserver.core.scan import Pose2D
@@ -201,6 +202,16 @@ class Scenario:
     def inflation(self) -> InflationParams:
         """The map server's inflation (the ground truth must inflate the same way)."""
         return self.map_server.inflation.build()
+
+    def zone_layout(self) -> ZoneLayout:
+        """The floor's strips, one map server each (``map_server.zones``; one strip when
+        1), with borders for the units' LiDAR reach and the costmap's inflation."""
+        return ZoneLayout.strips(
+            self.geometry(),
+            self.map_server.zones,
+            self.units.lidar.range_max,
+            self.inflation().inflation_radius,
+        )
 
     def server_overrides(self) -> dict[str, Any]:
         """``MapServerSpec.overrides``: what the runner passes to the embedded server."""

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 
 from fleet.layout import Layout
 from fleet.unit import DriveLimits
+from mapserver.client.zones import MAX_ZONES
 from mapserver.core.inflation import InflationParams
 from mapserver.core.sensor_model import DEFAULT_POLICY, DecayParams, Policy, SensorModel
 from mapserver.service.settings import (
@@ -62,6 +63,7 @@ class MapServerFields(Section):
     decay: DecayFields = DecayFields()
     inflation: InflationFields = InflationFields()
     max_clearing_range: number("metres") | None = None
+    zones: number("map servers", ge=1, le=MAX_ZONES, integer=True) = 1
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,8 @@ class MapServerSpec:
     """The map server a run uses: every value the scenario pins (defaults filled in).
 
     grid: the whole floor at the scenario's resolution, origin (0, 0).
+    zones: how many map servers share the floor, each a strip of it with borders
+    (``mapserver.client.zones.ZoneLayout``; 1: one server for the whole floor).
     """
 
     policy: Policy
@@ -77,6 +81,7 @@ class MapServerSpec:
     decay: DecaySettings
     inflation: InflationSettings
     max_clearing_range: float | None = None
+    zones: int = 1
 
     def overrides(self) -> dict[str, Any]:
         """Settings overrides for ``load_settings`` (nested mappings): the policy, grid,
@@ -106,6 +111,10 @@ def parse_map_server(
     where = ("map_server",)
     width = math.ceil(layout.width / f.resolution - 1e-9)
     height = math.ceil(layout.height / f.resolution - 1e-9)
+    if f.zones > width:
+        raise doc.error(
+            (*where, "zones"), f"must be at most the floor's {width} grid columns", f.zones
+        )
     if width * height > MAX_GRID_CELLS:
         raise doc.error(
             (*where, "resolution"),
@@ -139,4 +148,5 @@ def parse_map_server(
         decay=settings.decay,
         inflation=settings.inflation,
         max_clearing_range=settings.max_clearing_range,
+        zones=f.zones,
     )

@@ -62,7 +62,8 @@ class LoggedServer(EmbeddedServer):
             )
         # EmbeddedServer reports a failed start with proc.stderr.read(): the log, here.
         self.proc.stderr = open(self.log_path)  # noqa: SIM115 - closed by stop()
-        self._wait_ready(ready_timeout)
+        self.ready_timeout = ready_timeout
+        self.wait_ready()
 
     @property
     def pid(self) -> int:

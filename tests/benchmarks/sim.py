@@ -4,7 +4,7 @@ factors, with and without the map server, and the profile of a step.
 
 Run: ``python -m tests.benchmarks.sim [--steps N] [--threads T] [--casters grid bullet]
 [--server-seconds S] [--server-units 50 100] [--scenario PATH] [--scenario-seconds S]
-[--profile-steps N] [--skip-bare] [--json]``
+[--zones Z [Z ...]] [--profile-steps N] [--skip-bare] [--json]``
 
 0. Compile time of the ``grid`` caster's numba kernels, in a fresh process with an empty
    numba cache (compiled and cached), and again with that cache (loaded).
@@ -27,6 +27,8 @@ Run: ``python -m tests.benchmarks.sim [--steps N] [--threads T] [--casters grid 
    sim, planners, lane coordinator, its own embedded map server), and the sim alone on
    the same floor (each unit driving back and forth 8 m along its lane, no server).
    Printed: the real-time factor of each (wall time from the first step to the last).
+   ``--zones``: the whole run once for each number of map servers sharing the floor
+   (``map_server.zones``: strips with borders, docs/scaling.md).
 3. With the map server: ``fleetmap serve`` with its default settings (2000 x 1000 cells
    at 0.05 m, ``decay``, journal ``synchronous=FULL``) on 127.0.0.1 in a subprocess, and
    ``--server-units`` (50 and 100) units of part 1 with 360 beams posting each step's
@@ -219,10 +221,13 @@ def measure(
 
 
 # ---------------------------------------------------------------------------- the scale run
-def scale_scenario(path: Path, caster: str, seconds: float) -> Scenario:
+def scale_scenario(path: Path, caster: str, seconds: float, zones: int | None = None) -> Scenario:
     """The scenario at ``path`` (``hundred_units`` by default) for ``seconds`` of sim time
-    with ``caster``."""
-    return load_scenario(path, {"duration": seconds, "units.lidar.caster": caster})
+    with ``caster``, its floor served by ``zones`` map servers (None: as the file says)."""
+    overrides: dict[str, object] = {"duration": seconds, "units.lidar.caster": caster}
+    if zones is not None:
+        overrides["map_server.zones"] = zones
+    return load_scenario(path, overrides)
 
 
 def shuttle_sim(scenario: Scenario) -> tuple[World, FleetSim]:
@@ -396,6 +401,11 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         "--scenario", type=Path, default=HUNDRED_UNITS,
         help="the scale run of parts 2 and 4 (default: scenarios/hundred_units.yaml)",
     )  # fmt: skip
+    parser.add_argument(
+        "--zones", type=int, nargs="+", default=[None],
+        help="part 2's whole run with each of these numbers of map servers (map_server.zones;"
+        " default: as the scenario says)",
+    )  # fmt: skip
     parser.add_argument("--skip-bare", action="store_true", help="skip part 1")
     parser.add_argument("--json", action="store_true", help="print a JSON object last")
     args = parser.parse_args(argv)
@@ -435,9 +445,13 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         )
     scenario = result["scale_runs"] = []
     for caster in args.casters if args.scenario_seconds > 0 else ():
-        setup = scale_scenario(args.scenario, caster, args.scenario_seconds)
-        for how, measured in (("sim alone", scenario_alone), ("whole run", scenario_run)):
-            row = {"caster": caster, "how": how, **measured(setup)}
+        runs = [("sim alone", scenario_alone, None)] + [
+            (f"whole run{f', {z} zones' if args.zones != [None] else ''}", scenario_run, z)
+            for z in args.zones
+        ]
+        for how, measured, zones in runs:
+            setup = scale_scenario(args.scenario, caster, args.scenario_seconds, zones)
+            row = {"caster": caster, "how": how, "zones": setup.map_server.zones, **measured(setup)}
             scenario.append(row)
             print(
                 f"{name}, {caster}, {how}: {row['sim_seconds']:.1f} sim s in "

@@ -4,6 +4,7 @@ import json
 from dataclasses import replace
 
 import httpx
+import numpy as np
 import pytest
 from conftest import make_scan
 from mcap.reader import make_reader
@@ -17,6 +18,7 @@ from scenarios.score.metric_registry import REGISTRY
 from scenarios.spec.scenario import load_scenario
 
 TINY = "scenarios/tiny.yaml"
+BUSY = "scenarios/busy_shift.yaml"
 CONTRACT_KEYS = {
     "scenario", "policy", "seed", "units", "sim_seconds", "wall_seconds", "tasks_completed",
     "phantom_freezes", "phantom_freeze_seconds", "true_block_freezes", "stale_free_plans",
@@ -103,6 +105,32 @@ def test_same_seed_same_metrics_with_and_without_a_server(first_run, tmp_path):
         assert {k: v for k, v in other.items() if k != "wall_seconds"} == {
             k: v for k, v in metrics.items() if k != "wall_seconds"
         }
+
+
+def test_a_floor_served_by_zones_runs_as_one_server_would():
+    """busy_shift's 100 m floor cut to 30 s, under one map server and under three (strips
+    of 33 m, borders of 20.7 m): the same metrics but the wall time, trips, freezes and
+    collisions, and every sampled costmap and occupancy grid the same bytes (the version
+    aside: it counts each zone's scans); the zoned run keeps no fused scans."""
+    records = {
+        zones: runner.run(replace(load_scenario(BUSY, {"map_server.zones": zones}), duration=30.0))
+        for zones in (1, 3)
+    }
+    one, three = records[1], records[3]
+    for record in (one, three):
+        record.metrics.pop("wall_seconds")
+    assert one.metrics == three.metrics and one.metrics["scans_fused"] > 0
+    assert (one.trips, one.freezes, one.collisions) == (
+        three.trips,
+        three.freezes,
+        three.collisions,
+    )
+    assert len(one.grids) == len(three.grids) > 0
+    for mine, zoned in zip(one.grids, three.grids, strict=True):
+        assert mine.stamp == zoned.stamp
+        np.testing.assert_array_equal(mine.costs, zoned.costs)
+        np.testing.assert_array_equal(mine.occupancy, zoned.occupancy)
+    assert one.fused is not None and three.fused is None
 
 
 def test_a_bad_scenario_is_a_clear_error(tmp_path, capsys):

@@ -4,6 +4,7 @@ the line and the field, trips are seeded, and no input raises anything but Scena
 from __future__ import annotations
 
 import math
+import re
 import pickle
 from pathlib import Path
 
@@ -123,6 +124,23 @@ def test_the_lidar_caster_is_a_scenario_setting_given_to_every_unit(tmp_path):
     scenario = load_text(text, tmp_path)
     assert (scenario.units.caster, scenario.units.lidar.beams) == ("bullet", 90)
     assert {spec.caster for spec in scenario.unit_specs()} == {"bullet"}
+
+
+def test_map_server_zones_cut_the_floor_into_strips_for_the_lidar_reach(tmp_path):
+    one = load_text(BASE, tmp_path)
+    assert one.map_server.zones == 1 and one.zone_layout().cuts == (0, 120)
+    text = BASE.replace("policy: decay", "policy: decay\n  zones: 3").replace(
+        "{beams: 90}", "{beams: 90, range_max: 8.0}"
+    )
+    three = load_text(text, tmp_path).zone_layout()
+    assert three.cuts == (0, 40, 80, 120)
+    assert three.reach_m == pytest.approx(8.1)  # the LiDAR's range and a cell
+    assert three.margin_cells == 6  # the default inflation radius 0.55 m, and a cell
+    cases = [(0, "in [1, 64]"), (2.5, "an integer"), ("13\n  resolution: 1.0", "12 grid columns")]
+    for zones, reason in cases:
+        bad = BASE.replace("policy: decay", f"policy: decay\n  zones: {zones}")
+        with pytest.raises(ScenarioError, match=f"map_server.zones: must .*{re.escape(reason)}"):
+            load_text(bad, tmp_path)
 
 
 def test_the_no_return_settings_are_scenario_settings(tmp_path):
