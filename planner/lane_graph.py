@@ -186,6 +186,7 @@ class LaneGraph:
         self.version = 0
         """Bumped by every ``refresh`` that changed a weight or a blocked flag."""
         self._xy = np.array([graph.nodes[n]["pos"] for n in self.nodes], dtype=np.float64)
+        self._index = {n: i for i, n in enumerate(self.nodes)}
         self.corridors, self.corridor_ends = _label_corridors(graph, self.lanes)
         und = graph.to_undirected(as_view=True)
         self.crossings = frozenset(
@@ -292,9 +293,23 @@ class LaneGraph:
 
     def nearest_free_node(self, x: float, y: float, taken: Set[str]) -> str | None:
         """The node nearest to (x, y) [m] that is not in ``taken`` (ties: the smallest node
-        id); None when every node is taken."""
-        free = [n for n in self.nodes if n not in taken]
-        return min(free, key=lambda n: (math.dist(self.position(n), (x, y)), n), default=None)
+        id); None when every node is taken.
+
+        Distances are ``math.dist``'s: squared distances in numpy find the few nodes
+        within rounding of the nearest, and ``math.dist`` decides among those, so the
+        answer is the one a scan of every node with ``math.dist`` gives."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"(x, y) must be finite, got {(x, y)!r}")
+        d2 = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+        if taken:
+            d2[[self._index[n] for n in taken if n in self._index]] = math.inf
+        best = d2.min(initial=math.inf)
+        if best == math.inf:
+            return None
+        near = np.flatnonzero(d2 <= best * (1 + 1e-9) + 1e-300)
+        return min(
+            (self.nodes[i] for i in near), key=lambda n: (math.dist(self.position(n), (x, y)), n)
+        )
 
     def shortest_route(
         self,

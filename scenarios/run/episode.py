@@ -182,9 +182,11 @@ class Episode:
             )
             for i, spec in enumerate(units)
         }
+        held = {n for n in graph.nodes if coordinator.holder(n) is not None}
         for i, spec in enumerate(units):  # every unit holds its start node from t = 0
-            node = _start_node(coordinator, graph, spec.unit_id, (spec.start.x, spec.start.y))
+            node = graph.nearest_free_node(spec.start.x, spec.start.y, held)
             coordinator.request(spec.unit_id, node, node, float(-i), 0.0)
+            held.add(node)  # as _start_node finds it, without asking every node's holder
         self.truth = GroundTruth(world, self.geometry, setup.inflation())
         self.clearing = ClearingTracker(self.geometry)
         self.events: list = []

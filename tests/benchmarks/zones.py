@@ -3,13 +3,12 @@
 Run: ``python -m tests.benchmarks.zones [--width 400] [--height 200] [--units 1000]
 [--range 20] [--zones 1 2 4 8] [--scan-ms 0.9] [--seed 0] [--json]``
 
-The design of docs/scaling.md: the site is cut into vertical strips, one map server
-each; a strip's server maps its strip plus a border of ``--range`` metres on each side
-(a LiDAR's reach), so every cell a scan can observe lies inside the server of the strip
-the unit stands in, and units within ``--range`` of a cut post to both servers (the
-``Scan`` is sent twice; each server fuses what falls in its grid). A planner reads the
-server of the strip it plans in; a path across a cut is planned to a lane crossing in the
-shared border, then on in the next strip.
+The design of docs/scaling.md, as ``mapserver.client.zones.ZoneLayout`` lays it out
+(``map_server.zones`` of a scenario runs it): the site is cut into vertical strips, one
+map server each; a strip's server maps its strip plus a border of the LiDAR's reach
+(``--range``) and the inflation radius on each side, and a unit posts to every zone whose
+strip (plus the inflation radius) its LiDAR reaches (the ``Scan`` is sent to each; each
+server fuses what falls in its grid). Reads stitch the strips.
 
 For ``--units`` units spread uniformly over the site (``--seed``), each scanning at 10 Hz,
 printed per zone count: the scans/s the busiest server takes, the share of units that
@@ -26,20 +25,17 @@ import json
 
 import numpy as np
 
+from mapserver.client.zones import ZoneLayout
+from mapserver.core.geometry import GridGeometry
+
 RATE_HZ = 10.0
 RESOLUTION = 0.05  # [m/cell]
+INFLATION_M = 0.55  # [m] the default inflation radius: the margin of each strip
 
 
-def zone_loads(xs: np.ndarray, width: float, zones: int, reach: float) -> np.ndarray:
-    """Units that post to each zone: a unit at x posts to every strip whose extended
-    range [x0 - reach, x1 + reach] holds x."""
-    edges = np.linspace(0.0, width, zones + 1)
-    return np.array(
-        [
-            np.count_nonzero((xs >= lo - reach) & (xs < hi + reach))
-            for lo, hi in zip(edges[:-1], edges[1:], strict=True)
-        ]
-    )
+def zone_loads(layout: ZoneLayout, xs: np.ndarray) -> np.ndarray:
+    """Units that post to each zone of ``layout``, for units at ``xs`` [m]."""
+    return layout.posts_to_many(xs).sum(axis=0)
 
 
 def main() -> None:
@@ -62,10 +58,11 @@ def main() -> None:
           f"border {args.range:g} m, {args.scan_ms:g} ms of a core per scan")  # fmt: skip
     print(f"{'zones':>5} {'busiest scans/s':>15} {'extra scans':>13} "
           f"{'cells/server':>12} {'cores (busiest)':>15}")  # fmt: skip
+    site = GridGeometry(round(args.width / RESOLUTION), round(args.height / RESOLUTION), RESOLUTION)
     for zones in args.zones:
-        loads = zone_loads(xs, args.width, zones, args.range)
-        strip = args.width / zones + 2 * args.range * (zones > 1)
-        cells = round(min(strip, args.width) / RESOLUTION) * round(args.height / RESOLUTION)
+        layout = ZoneLayout.strips(site, zones, args.range, INFLATION_M)
+        loads = zone_loads(layout, xs)
+        cells = max(layout.geometry(k).size for k in range(zones))
         row = {
             "zones": zones,
             "busiest_scans_per_s": float(loads.max() * RATE_HZ),

@@ -6,6 +6,8 @@ import networkx as nx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from lane_helpers import FakeMap, grid_graph
 from server_helpers import scan_body, small_settings
 
@@ -107,6 +109,37 @@ def test_nearest_node_breaks_ties_by_id():
     g = grid_graph(3, 3)
     assert g.nearest_node(3.2, 5.9) == "n1_2"
     assert g.nearest_node(1.5, 0.0) == "n0_0"  # halfway between n0_0 and n1_0
+
+
+def nearest_free_by_scan(g: LaneGraph, x: float, y: float, taken) -> str | None:
+    """The reference: every free node's ``math.dist``, ties to the smallest id."""
+    free = [n for n in g.nodes if n not in taken]
+    return min(free, key=lambda n: (math.dist(g.position(n), (x, y)), n), default=None)
+
+
+@given(
+    st.integers(1, 6),
+    st.integers(1, 6),
+    st.floats(-3, 20),
+    st.floats(-3, 20),
+    st.sets(st.tuples(st.integers(0, 5), st.integers(0, 5))),
+)
+@settings(max_examples=300, deadline=None)
+def test_nearest_free_node_is_the_nearest_by_math_dist_ties_to_the_smallest_id(
+    nx_, ny_, x, y, taken_cells
+):
+    g = grid_graph(nx_, ny_)  # nodes 3 m apart: many exact ties on the grid's lines
+    taken = {f"n{i}_{j}" for i, j in taken_cells} | {"not-a-node"}
+    for px, py in ((x, y), (round(x / 1.5) * 1.5, round(y / 1.5) * 1.5)):
+        assert g.nearest_free_node(px, py, taken) == nearest_free_by_scan(g, px, py, taken)
+
+
+def test_nearest_free_node_is_none_when_every_node_is_taken():
+    g = grid_graph(2, 2)
+    assert g.nearest_free_node(0.0, 0.0, set(g.nodes)) is None
+    assert g.nearest_free_node(0.0, 0.0, set()) == "n0_0"
+    with pytest.raises(ValueError, match="finite"):
+        g.nearest_free_node(math.nan, 0.0, set())
 
 
 def test_refresh_reads_every_lane_both_ways_in_one_query():

@@ -4,8 +4,8 @@ the line and the field, trips are seeded, and no input raises anything but Scena
 from __future__ import annotations
 
 import math
-import re
 import pickle
+import re
 from pathlib import Path
 
 import numpy as np
