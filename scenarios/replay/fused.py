@@ -28,14 +28,24 @@ In the MCAP file:
 
 A run against an outside server (``fleetmap run --server``) has no data dir to read: its
 replay has neither, and ``fleetmap replay`` falls back to the sampled LaserScans.
+
+A run on zones (``map_server.zones``, docs/scaling.md) has a data dir per zone server.
+``read_zoned_fused`` gives what one server of the whole site would have fused
+(``ZonedFusedScans``): the site's settings (zone 0's with the site's grid) and the zones'
+journals merged in the order the fleet posted, each scan once (a scan near a cut is in
+several journals). The fleet posts tick by tick, a tick's scans stamped alike and in its
+units' order, so that order is (stamp, unit); each journal is checked to follow it. The
+stitched map of the zones is one server's fed that sequence, cell for cell, so
+``fleetmap replay`` rebuilds it bit for bit as it does one server's.
 """
 
 from __future__ import annotations
 
 import base64
+import heapq
 import json
 import weakref
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from tempfile import TemporaryDirectory
@@ -44,8 +54,9 @@ from typing import Any
 import numpy as np
 import orjson
 
+from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import Scan
-from mapserver.service.replay import journal_records, read_settings
+from mapserver.service.replay import ReplayError, journal_records, read_settings
 from mapserver.store.journal import JOURNAL_FILENAME
 
 FUSED_TOPIC = "/fleetmap/scans"
@@ -91,6 +102,67 @@ def read_fused(data_dir: Path, folder: TemporaryDirectory | None = None) -> Fuse
     (``mapserver.service.replay.ReplayError`` when it holds no settings); ``folder``, the
     temporary folder that holds ``data_dir``, is removed when the result is."""
     fused = FusedScans(read_settings(data_dir), Path(data_dir) / JOURNAL_FILENAME)
+    if folder is not None:
+        weakref.finalize(fused, folder.cleanup)
+    return fused
+
+
+@dataclass(frozen=True)
+class ZonedFusedScans:
+    """What a zoned run's servers fused, as one server of the whole site (module
+    docstring): the site's map settings, the zones' journals and the fleet's units in the
+    order it posts a tick's scans."""
+
+    settings: dict[str, Any]
+    journals: tuple[Path, ...]
+    unit_order: tuple[str, ...]
+
+    def scans(self) -> Iterator[tuple[int, Scan]]:
+        """The fused scans as (seq from 1, scan) in posting order, each once, read one at
+        a time; ReplayError when a journal holds a unit the fleet has not or breaks that
+        order."""
+        rank = {unit: k for k, unit in enumerate(self.unit_order)}
+        merged = heapq.merge(*(self._keyed(j, rank) for j in self.journals), key=_key_of)
+        seq, previous = 0, None
+        for key, scan in merged:
+            if key != previous:  # else the same scan, journaled by another zone too
+                seq += 1
+                previous = key
+                yield seq, scan
+
+    @staticmethod
+    def _keyed(journal: Path, rank: dict[str, int]) -> Iterator[tuple[tuple[float, int], Scan]]:
+        last = None
+        for seq, scan in journal_fused(journal):
+            if scan.unit_id not in rank:
+                raise ReplayError(f"{journal}: seq {seq} is unit {scan.unit_id!r}, not the fleet's")
+            key = (scan.stamp, rank[scan.unit_id])
+            if last is not None and key <= last:
+                raise ReplayError(
+                    f"{journal}: seq {seq} (unit {scan.unit_id!r}, stamp {scan.stamp}) is not "
+                    "in the fleet's posting order (stamp, then unit)"
+                )
+            last = key
+            yield key, scan
+
+
+def read_zoned_fused(
+    data_dirs: Sequence[Path],
+    site: GridGeometry,
+    unit_order: Sequence[str],
+    folder: TemporaryDirectory | None = None,
+) -> ZonedFusedScans:
+    """What the stopped zone servers of ``data_dirs`` fused, as one server of ``site``
+    (module docstring); ReplayError when a dir holds no settings or the zones' settings
+    differ but for their grids. ``folder`` as ``read_fused``'s."""
+    settings = [read_settings(d) for d in data_dirs]
+    first = {k: v for k, v in settings[0].items() if k != "grid"}
+    for data_dir, other in zip(data_dirs[1:], settings[1:], strict=True):
+        if {k: v for k, v in other.items() if k != "grid"} != first:
+            raise ReplayError(f"{data_dir}: its map settings differ from {data_dirs[0]}'s")
+    grid = {name: getattr(site, name) for name in settings[0]["grid"]}
+    journals = tuple(Path(d) / JOURNAL_FILENAME for d in data_dirs)
+    fused = ZonedFusedScans({**settings[0], "grid": grid}, journals, tuple(unit_order))
     if folder is not None:
         weakref.finalize(fused, folder.cleanup)
     return fused
@@ -142,6 +214,10 @@ def settings_metadata(settings: dict[str, Any]) -> dict[str, str]:
 def settings_of(metadata: dict[str, str]) -> dict[str, Any]:
     """The map settings of a ``fleetmap.map_settings`` record (ValueError: not JSON)."""
     return json.loads(metadata["json"])
+
+
+def _key_of(item: tuple[tuple[float, int], Scan]) -> tuple[float, int]:
+    return item[0]
 
 
 def _base64(value: Any) -> str:

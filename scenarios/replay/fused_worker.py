@@ -33,7 +33,7 @@ from pathlib import Path
 import scenarios
 from mapserver.service.replay import ReplayError, opened_journal
 from scenarios.replay.foxglove_messages import stamp_ns
-from scenarios.replay.fused import FusedScans, fused_message, journal_fused
+from scenarios.replay.fused import FusedScans, ZonedFusedScans, fused_message, journal_fused
 
 WORKER_FROM = 20_000
 """Journals with at least this many seqs are read in a child process."""
@@ -44,11 +44,15 @@ _PIPE_BYTES = 1 << 20
 64 KB (the default pipe) the two processes took turns rather than working together."""
 
 
-def fused_items(fused: FusedScans, worker_from: int = WORKER_FROM) -> Iterator[tuple[int, bytes]]:
+def fused_items(
+    fused: FusedScans | ZonedFusedScans, worker_from: int = WORKER_FROM
+) -> Iterator[tuple[int, bytes]]:
     """(stamp [ns], ``/fleetmap/scans`` message) of every fused scan, in seq order
-    (module docstring); ReplayError when the journal cannot be read."""
-    if _seq_count(fused.journal) < worker_from:
-        yield from messages(fused.journal)
+    (module docstring; a zoned run's merged journals are read in process); ReplayError
+    when a journal cannot be read."""
+    if isinstance(fused, ZonedFusedScans) or _seq_count(fused.journal) < worker_from:
+        for seq, scan in fused.scans():
+            yield stamp_ns(scan.stamp), fused_message(seq, scan)
         return
     command = [sys.executable, "-m", __name__, str(fused.journal)]
     with tempfile.TemporaryFile() as errors:  # a file: a chatty child never blocks on it

@@ -38,6 +38,7 @@ from fleet.poster import ScanPoster
 from fleet.sim import FleetSim, StepResult
 from fleet.world import World
 from mapserver.client import Grid, MapClient
+from mapserver.client.zoned import ZonedMapClient
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.queries import query_segments
 from planner.coordinator import LaneCoordinator
@@ -109,7 +110,8 @@ class StepReport:
 
 
 class Episode:
-    """A run of ``setup`` against the map server behind ``client`` (module docstring).
+    """A run of ``setup`` against the map server behind ``client`` (or the zones' servers
+    behind a ``ZonedMapClient``) (module docstring).
 
     extra_observers: run after the standard ones (``standard_observers``), e.g. a
     progress bar. Call ``reset`` first, ``close`` at the end (or use ``with``).
@@ -118,7 +120,7 @@ class Episode:
     def __init__(
         self,
         setup: Scenario,
-        client: MapClient,
+        client: MapClient | ZonedMapClient,
         options: RunOptions | None = None,
         extra_observers: Sequence[Observer] = (),
     ) -> None:
@@ -226,7 +228,7 @@ class Episode:
         """True once the scenario's duration has run."""
         return self.sim.time >= self.setup.duration - 1e-9
 
-    def synced(self) -> MapClient:
+    def synced(self) -> MapClient | ZonedMapClient:
         """The map client, once every scan posted so far is acknowledged."""
         self.poster.flush()
         return self.client

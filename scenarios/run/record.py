@@ -15,7 +15,7 @@ import numpy as np
 from mapserver.core.geometry import GridGeometry
 from mapserver.core.scan import PoseStd
 from planner.freeze import PHANTOM, TRUE_BLOCK, Segment
-from scenarios.replay.fused import FusedScans
+from scenarios.replay.fused import FusedScans, ZonedFusedScans
 from scenarios.score.incidents import CollisionIncident
 
 if TYPE_CHECKING:
@@ -302,4 +302,4 @@ class RunRecord:
     metrics: dict[str, object] = field(default_factory=dict)
     unit_radius: float | None = None
     unit_height: float | None = None
-    fused: FusedScans | None = None
+    fused: FusedScans | ZonedFusedScans | None = None

@@ -6,8 +6,8 @@ the scored ``RunRecord``. The episode module says what each step does.
 
 With ``map_server.zones`` above 1 it starts one server per zone instead, side by side
 (``Scenario.zone_layout``: strips of the floor with borders), and the episode reads and
-posts through a ``ZonedMapClient``; such a run's record holds no fused scans (its replay
-keeps the sampled LaserScans, as a run against an outside server's does).
+posts through a ``ZonedMapClient``; the record's fused scans are then the zones' journals
+merged as one server of the whole floor would have fused them (``read_zoned_fused``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from mapserver.client import MapClient
 from mapserver.client.zoned import ZonedMapClient
 from mapserver.client.zones import ZoneLayout
 from mapserver.core.geometry import GridGeometry
-from scenarios.replay.fused import read_fused
+from scenarios.replay.fused import read_fused, read_zoned_fused
 from scenarios.run.embedded_server import EmbeddedServer
 from scenarios.run.episode import Episode, RunOptions
 from scenarios.run.observers import Observer, ProgressReport
@@ -91,6 +91,10 @@ def run(
                 server.stop()
         if len(servers) == 1:  # read while the replay is written; the folder goes with it
             record.fused = read_fused(servers[0].data_dir, tmp)
+        elif servers:
+            dirs = [server.data_dir for server in servers]
+            units = [spec.unit_id for spec in setup.unit_specs()]  # the order they post in
+            record.fused = read_zoned_fused(dirs, layout.site, units, tmp)
         else:
             tmp.cleanup()
         return record

@@ -111,7 +111,8 @@ def test_a_floor_served_by_zones_runs_as_one_server_would():
     """busy_shift's 100 m floor cut to 30 s, under one map server and under three (strips
     of 33 m, borders of 20.7 m): the same metrics but the wall time, trips, freezes and
     collisions, and every sampled costmap and occupancy grid the same bytes (the version
-    aside: it counts each zone's scans); the zoned run keeps no fused scans."""
+    aside: it counts each zone's scans); the zones' journals, merged, are the one
+    server's."""
     records = {
         zones: runner.run(replace(load_scenario(BUSY, {"map_server.zones": zones}), duration=30.0))
         for zones in (1, 3)
@@ -130,7 +131,11 @@ def test_a_floor_served_by_zones_runs_as_one_server_would():
         assert mine.stamp == zoned.stamp
         np.testing.assert_array_equal(mine.costs, zoned.costs)
         np.testing.assert_array_equal(mine.occupancy, zoned.occupancy)
-    assert one.fused is not None and three.fused is None
+    # what the zones fused, merged: the one server's journal, scan for scan
+    assert three.fused.settings == one.fused.settings
+    mine = [(seq, scan.digest()) for seq, scan in one.fused.scans()]
+    assert [(seq, scan.digest()) for seq, scan in three.fused.scans()] == mine
+    assert len(mine) == one.metrics["scans_fused"]
 
 
 def test_a_bad_scenario_is_a_clear_error(tmp_path, capsys):
