@@ -30,6 +30,11 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("--policy", choices=[p.value for p in Policy],
                      help="override the map policy (default: the scenario's)")  # fmt: skip
     run.add_argument("--seed", type=int, help="override the scenario's seed (default: its own)")
+    run.add_argument(
+        "--zones", type=int, metavar="N",
+        help="serve the floor with N map servers of its own, strips with overlapping "
+        "borders (map_server.zones, docs/scaling.md; default: the scenario's)",
+    )  # fmt: skip
     run.add_argument("--server", help="URL of a running map server (default: start one)")
     run.add_argument("--out", type=Path, default=Path("out/run"), help="output folder")
     run.add_argument("--json", action="store_true", help="print metrics JSON as the last line")
@@ -49,13 +54,19 @@ def add_run_parsers(subparsers: argparse._SubParsersAction) -> None:
 def run_one(args: argparse.Namespace) -> int:
     from scenarios.run.execute import ScenarioError, execute
 
+    if args.zones is not None and args.server is not None:
+        print("fleetmap run: error: --zones: a run against --server uses that one server; "
+              "give one of them", file=sys.stderr)  # fmt: skip
+        return 2
+    overrides = None if args.zones is None else {"map_server.zones": args.zones}
     progress = _progress_bar(args.scenario.stem)
     try:
         live = _live(_foxglove_port(args))
         try:
             metrics = execute(
                 args.scenario, args.policy, args.seed, args.server, args.out,
-                progress=progress, announce=_say, observers=[] if live is None else [live],
+                progress=progress, announce=_say, overrides=overrides,
+                observers=[] if live is None else [live],
             )  # fmt: skip
         finally:
             if live is not None:

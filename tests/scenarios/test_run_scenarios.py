@@ -138,6 +138,23 @@ def test_a_floor_served_by_zones_runs_as_one_server_would():
     assert len(mine) == one.metrics["scans_fused"]
 
 
+def test_zones_are_a_run_option_checked_as_the_scenario_key(first_run, tmp_path, capsys):
+    _, metrics = first_run
+    _, zoned = run(tmp_path, "zoned", "--zones", "2")
+    assert {k: v for k, v in zoned.items() if k != "wall_seconds"} == {
+        k: v for k, v in metrics.items() if k != "wall_seconds"
+    }
+    capsys.readouterr()
+    assert main(["run", TINY, "--out", str(tmp_path / "bad"), "--zones", "0"]) == 2
+    assert "map_server.zones (override): must be an integer of map servers in [1, 64], got 0" in (
+        capsys.readouterr().err
+    )
+    both = ["run", TINY, "--out", str(tmp_path / "both"), "--zones", "2", "--server", "http://x"]
+    assert main(both) == 2
+    assert "--zones: a run against --server uses that one server" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "both").exists()
+
+
 def test_a_bad_scenario_is_a_clear_error(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: bad\nduration: -5\n")
