@@ -205,6 +205,15 @@ class LaneCoordinator:
             passing=tuple(b.head for b in u.behind if b.lane_held),
         )
 
+    def start_node(self, unit_id: str) -> str | None:
+        """The node ``unit_id`` stands at or, on a lane, drives to now: ``status``'s
+        ``node or target`` (None while it waits to turn back on a blocked lane), without
+        building the whole status."""
+        u = self._unit(unit_id)
+        if u.edge is None:
+            return u.route[0]
+        return None if u.turn_back else u.edge[1]
+
     def holder(self, node: str) -> str | None:
         """The unit holding ``node``, if any."""
         return self.state.table.holder(node)

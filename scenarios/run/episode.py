@@ -429,8 +429,7 @@ def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, positi
     if not coordinator.knows(uid):  # the nearest node nobody holds
         held = {n for n in graph.nodes if coordinator.holder(n) is not None}
         return graph.nearest_free_node(*position, held)
-    status = coordinator.status(uid)
-    return status.node or status.target
+    return coordinator.start_node(uid)
 
 
 def _rerouter(coordinator: LaneCoordinator, graph: LaneGraph):

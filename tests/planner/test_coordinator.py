@@ -324,6 +324,9 @@ def play(scenario, reserve_ahead_m=0.0, policy="reserve_ahead"):
                 coord.refresh(drive.now)
             drive.check()
         drive.step()
+        for uid, *_ in units:  # the shortcut says what the whole status says
+            status = coord.status(uid)
+            assert coord.start_node(uid) == (status.node or status.target)
         if not blocked_ever:
             check_corridors_one_way(coord)
     return coord
