@@ -66,11 +66,10 @@ def run(
             data_dir = Path(tmp.name) / "data" if data_dir is None else Path(data_dir)
             servers = start_servers(setup, layout, data_dir)
             urls = [server.url for server in servers]
-            if announce is not None:
-                for k, url in enumerate(urls):
-                    zone = f" (zone {k} of {len(urls)})" if len(urls) > 1 else ""
-                    announce(f"map server for this run{zone}: {url}/ (the live viewer)")
         try:
+            for k, url in enumerate(urls if servers and announce is not None else ()):
+                zone = f" (zone {k} of {len(urls)})" if len(urls) > 1 else ""
+                announce(f"map server for this run{zone}: {url}/ (the live viewer)")
             with ExitStack() as stack:
                 clients = [
                     MapClient(stack.enter_context(httpx.Client(base_url=url, timeout=60)),
