@@ -76,6 +76,18 @@ CASES = [  # (id, argv with {tmp}, the command in the message, a part of the mes
     ),  # fmt: skip
     ("evaluate-missing", ["evaluate", "{tmp}/no.jsonl", "--out", "{tmp}/o"], "evaluate", "no such"),
     ("serve-config", ["serve", "--config", "{tmp}/nosuch.yaml"], "serve", "cannot read the file"),
+    (
+        "zones-count",
+        ["zones", "--width", "10", "--height", "10", "--zones", "0"],
+        "zones",
+        "--zones: must be a whole number in [1, 64], got 0",
+    ),
+    (
+        "run-zones-server",
+        ["run", str(TINY), "--zones", "2", "--server", "http://127.0.0.1:9"],
+        "run",
+        "--zones: a run against --server uses that one server",
+    ),
 ]
 
 

@@ -26,8 +26,9 @@ All lengths in metres, cells in the site's columns.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -92,6 +93,41 @@ class ZoneLayout:
         reach_m = range_m + res  # a return's cell may lie up to a cell beyond its range
         border_cells = _cells_past(reach_m, res) + margin_cells
         return cls(site, cuts, reach_m, margin_cells, border_cells)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The layout as plain values (``from_dict`` reads them back): what ``fleetmap
+        zones`` writes to ``zones.yaml`` for a fleet's ``ZonedMapClient``."""
+        return {
+            "site": asdict(self.site),
+            "cuts": list(self.cuts),
+            "reach_m": self.reach_m,
+            "margin_cells": self.margin_cells,
+            "border_cells": self.border_cells,
+        }
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> ZoneLayout:
+        """The layout ``to_dict`` gave; ``FieldError`` names a missing or bad value."""
+        if not isinstance(values, Mapping):
+            raise FieldError("zones", values, "must be a mapping of the layout's values")
+        names = ("site", "cuts", "reach_m", "margin_cells", "border_cells")
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise FieldError(missing[0], None, "is missing")
+        site = values["site"]
+        if not isinstance(site, Mapping):
+            raise FieldError("site", site, "must be a mapping of the grid's values")
+        cuts = values["cuts"]
+        if not isinstance(cuts, list | tuple) or not all(type(c) is int for c in cuts):
+            raise FieldError("cuts", cuts, "must be a list of whole columns")
+        try:
+            grid = GridGeometry(**site)
+        except TypeError as exc:
+            raise FieldError("site", dict(site), f"must hold a grid's values ({exc})") from None
+        reach = values["reach_m"]
+        if isinstance(reach, bool) or not isinstance(reach, int | float):
+            raise FieldError("reach_m", reach, "must be metres")
+        return cls(grid, tuple(cuts), float(reach), values["margin_cells"], values["border_cells"])
 
     @property
     def zones(self) -> int:

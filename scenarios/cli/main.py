@@ -11,6 +11,7 @@ from mapserver.cli.import_cmd import add_import_parser
 from mapserver.cli.journal import add_journal_parser
 from mapserver.cli.map_build import add_map_parser
 from mapserver.cli.serve import add_serve_parsers
+from mapserver.cli.zones_cmd import add_zones_parser
 from mapserver.version import package_version
 from scenarios.cli.evaluate import add_evaluate_parser
 from scenarios.cli.export import add_export_parser
@@ -42,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     add_import_parser(sub)
     add_evaluate_parser(sub)
+    add_zones_parser(sub)
     return parser
 
 

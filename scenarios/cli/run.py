@@ -55,8 +55,8 @@ def run_one(args: argparse.Namespace) -> int:
     from scenarios.run.execute import ScenarioError, execute
 
     if args.zones is not None and args.server is not None:
-        print("fleetmap run: error: --zones: a run against --server uses that one server; "
-              "give one of them", file=sys.stderr)  # fmt: skip
+        print("fleetmap run: error: --zones: a run against --server uses that one server "
+              "(give one of them)", file=sys.stderr)  # fmt: skip
         return 2
     overrides = None if args.zones is None else {"map_server.zones": args.zones}
     progress = _progress_bar(args.scenario.stem)

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mapserver.client.zones import MAX_ZONES, ZoneLayout
 from mapserver.core.errors import FieldError
 from mapserver.core.geometry import GridGeometry
+from mapserver.service.settings import load_settings
+from scenarios.cli.main import main
 
 
 @st.composite
@@ -117,3 +121,69 @@ def test_a_layout_whose_border_cannot_hold_its_reach_is_refused():
         ZoneLayout(GridGeometry(300, 10, 0.1), (0, 150, 300), 5.0, 1, 40)
     with pytest.raises(FieldError, match="cuts"):
         ZoneLayout(GridGeometry(300, 10, 0.1), (0, 150, 150, 300), 5.0, 1, 60)
+
+
+# ---------------------------------------------------------------- the layout as files
+
+
+@given(layouts())
+@settings(max_examples=100, deadline=None)
+def test_a_layout_reads_back_from_its_dict_and_its_yaml(case):
+    layout, _ = case
+    assert ZoneLayout.from_dict(layout.to_dict()) == layout
+    assert ZoneLayout.from_dict(yaml.safe_load(yaml.safe_dump(layout.to_dict()))) == layout
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"cuts": None}, "cuts"),
+        ({"cuts": [0, 1.5, 300]}, "cuts"),
+        ({"site": {"width": 300}}, "site"),
+        ({"site": "big"}, "site"),
+        ({"reach_m": "far"}, "reach_m"),
+        ({"margin_cells": -1}, "margin_cells"),
+        ({"border_cells": 3}, "border_cells"),
+    ],
+)
+def test_a_bad_layout_dict_is_refused_naming_the_field(change, field):
+    good = ZoneLayout.strips(GridGeometry(300, 10, 0.1), 2, 5.0, 0.55).to_dict()
+    with pytest.raises(FieldError) as caught:
+        ZoneLayout.from_dict({**good, **change})
+    assert caught.value.field == field
+    with pytest.raises(FieldError, match="reach_m is missing"):
+        ZoneLayout.from_dict({k: v for k, v in good.items() if k != "reach_m"})
+
+
+def test_fleetmap_zones_writes_a_serve_config_per_zone_and_the_layout(tmp_path, capsys):
+    out = tmp_path / "zones"
+    argv = ["zones", "--width", "4000", "--height", "2000", "--resolution", "0.1",
+            "--origin", "-10,-5", "--zones", "4", "--out", str(out), "--json"]  # fmt: skip
+    assert main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    layout = ZoneLayout.from_dict(json.loads(printed[-1]))
+    assert layout == ZoneLayout.strips(GridGeometry(4000, 2000, 0.1, -10.0, -5.0), 4, 20.0, 0.55)
+    assert "   1              90 to 190          69.2 to 210.8    1416 x 2000" in printed
+    assert ZoneLayout.from_dict(yaml.safe_load((out / "zones.yaml").read_text())) == layout
+    for k in range(4):  # each file is a server config whose grid is the zone's
+        settings = load_settings(out / f"zone-{k}.yaml", {"data_dir": tmp_path / f"d{k}"})
+        assert settings.geometry() == layout.geometry(k)
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--zones", "0"], "--zones: must be a whole number in [1, 64], got 0"),
+        (["--zones", "2", "--range", "-1"], "--range: must be finite metres >= 0, got -1.0"),
+        (["--zones", "2", "--resolution", "0"], "--resolution: must be positive metres"),
+        (["--zones", "2", "--inflation-radius", "nan"], "--inflation-radius: must be finite"),
+        (["--zones", "99"], "--zones: must be a whole number in [1, 64], got 99"),
+    ],
+)
+def test_fleetmap_zones_refuses_a_bad_value_naming_the_option(tmp_path, capsys, flags, message):
+    out = tmp_path / "zones"
+    assert main(["zones", "--width", "50", "--height", "20", *flags, "--out", str(out)]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"fleetmap zones: error: {message}")
+    assert line.endswith("(see --help)")
+    assert not out.exists()
