@@ -44,6 +44,7 @@ def test_negative_values_are_read_as_written(path, option, kind, tmp_path):
         "evaluate": [str(tmp_path / "s.jsonl")],
         "plan": [str(tmp_path / "m.yaml")],
         "import": [str(tmp_path / "s.jsonl"), "--server", "http://127.0.0.1:8700"],
+        "zones": ["--width", "10", "--height", "10", "--zones", "1"],
     }
     argv = [*path, *positional.get(" ".join(path), []), option, value]
     if path == ("plan",):
