@@ -158,7 +158,7 @@ class ZoneLayout:
     def posts_to(self, x: float) -> list[int]:
         """The zones a scan whose sensor stands at ``x`` [m] goes to, in order (module
         docstring): every zone whose exact band lies within ``reach_m`` of ``x``."""
-        return [k for k in range(self.zones) if self._reaches(x, k)]
+        return np.flatnonzero(self.posts_to_many(np.array([x]))[0]).tolist()
 
     def posts_to_many(self, xs: np.ndarray) -> np.ndarray:
         """``posts_to`` for many sensors: a (len(xs), zones) bool array."""
@@ -200,10 +200,6 @@ class ZoneLayout:
         lo = x0 + (cuts[:-1] - self.margin_cells) * res
         hi = x0 + (cuts[1:] + self.margin_cells) * res
         return lo, hi
-
-    def _reaches(self, x: float, k: int) -> bool:
-        lo, hi = self._bands()
-        return bool(lo[k] - self.reach_m <= x <= hi[k] + self.reach_m)
 
 
 def _cells_past(length_m: float, resolution: float) -> int:

@@ -184,11 +184,13 @@ class Episode:
             )
             for i, spec in enumerate(units)
         }
-        held = {n for n in graph.nodes if coordinator.holder(n) is not None}
-        for i, spec in enumerate(units):  # every unit holds its start node from t = 0
+        # every unit holds its start node from t = 0: the nearest node no unit before it
+        # holds (the coordinator is new, so those are all the held nodes)
+        held: set[str] = set()
+        for i, spec in enumerate(units):
             node = graph.nearest_free_node(spec.start.x, spec.start.y, held)
             coordinator.request(spec.unit_id, node, node, float(-i), 0.0)
-            held.add(node)  # as _start_node finds it, without asking every node's holder
+            held.add(node)
         self.truth = GroundTruth(world, self.geometry, setup.inflation())
         self.clearing = ClearingTracker(self.geometry)
         self.events: list = []
@@ -302,7 +304,7 @@ class Episode:
             uid: node
             for uid, agent in self.agents.items()
             if agent.task is None and now >= agent.broken_until
-            if (node := _start_node(self.coordinator, self.graph, uid, positions[uid])) is not None
+            if (node := self.coordinator.start_node(uid)) is not None
         }
         for uid, task in self.dispatcher.match(now, idle):
             self.agents[uid].assign(task, now, idle[uid])
@@ -421,15 +423,6 @@ def _coordinator(
     braking_m = max(spec.drive.max_speed**2 / (2 * spec.drive.max_accel) for spec in units)
     settings = plan.settings(radius, braking_m)
     return LaneCoordinator(graph, client, policy=plan.policy, settings=settings)
-
-
-def _start_node(coordinator: LaneCoordinator, graph: LaneGraph, uid: str, position) -> str | None:
-    """Where a unit's trip starts: the node it stands at or drives to (None: stranded on a
-    lane); a unit the coordinator does not know yet is at the nearest node nobody holds."""
-    if not coordinator.knows(uid):  # the nearest node nobody holds
-        held = {n for n in graph.nodes if coordinator.holder(n) is not None}
-        return graph.nearest_free_node(*position, held)
-    return coordinator.start_node(uid)
 
 
 def _rerouter(coordinator: LaneCoordinator, graph: LaneGraph):
