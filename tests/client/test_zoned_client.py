@@ -201,3 +201,31 @@ def test_a_scan_given_as_a_dict_without_a_pose_is_refused_before_anything_is_sen
         with pytest.raises(ValueError, match=r"scans\[0\]\.pose\.x"):
             zones.post_scans([{"unit_id": "u", "stamp": 1.0}])
         assert [m.version for m in map(MapClient.map_meta, zones.clients)] == [0, 0, 0]
+
+
+def test_segment_queries_on_the_stitched_costmap_answer_as_one_server_does(servers):
+    """Lanes read through the zones (``coordination.lanes_from: server``): each segment,
+    across a cut or inside a strip, gets the reading one server of the site replies."""
+    layout = ZoneLayout.strips(SITE, 3, RANGE_M, INFLATION_M)
+    one = servers(SITE, "decay")
+    with zoned(servers, layout, "decay") as zones:
+        rng = np.random.default_rng(3)
+        one.declare_clock(100.0)
+        zones.declare_clock(100.0)
+        for tick in range(4):
+            scans = border_scans(rng, layout, tick)
+            one.post_scans(scans)
+            zones.post_scans(scans)
+        segments = [(1.0, 5.0, 29.0, 5.0), (8.0, 2.0, 12.0, 8.0), (21.0, 1.0, 21.0, 9.0),
+                    (9.95, 5.0, 10.05, 5.0), (15.0, 5.0, 15.0, 5.0)]  # fmt: skip
+        mine = one.query_segments(segments)
+        zoned_readings = zones.query_segments(segments)
+        assert any(r.blocked for r in mine) and any(not r.blocked for r in mine)
+        for server, stitched in zip(mine, zoned_readings, strict=True):
+            assert stitched.max_cost == server.max_cost
+            assert stitched.blocked == server.blocked
+            assert stitched.unknown_fraction == pytest.approx(server.unknown_fraction, abs=1e-12)
+            want = None if server.first_blocked is None else tuple(server.first_blocked)
+            assert stitched.first_blocked == (
+                None if want is None else pytest.approx(want, abs=1e-12)
+            )
