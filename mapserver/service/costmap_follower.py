@@ -133,8 +133,10 @@ class CostmapFollower:
 
     def _refresh_loop(self) -> None:
         """Thread ``map-costmap``: after each change, refresh the costmap ``refresh_s``
-        after its last refresh (a read in between may have done it: then nothing is left)."""
-        while True:
+        after its last refresh (a read in between may have done it: then nothing is left).
+        ``close`` sets ``_closing`` before ``_changed``, so checking it at every turn stops
+        the loop even when the close lands between a wake-up and ``_changed.clear()``."""
+        while not self._closing.is_set():
             self._changed.wait()
             wait = self._refreshed + self._refresh_s - time.monotonic()
             if self._closing.wait(max(wait, 0.0)):
